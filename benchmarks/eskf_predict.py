@@ -4,7 +4,7 @@ the attitude a ``sf.Rot3``, F and Fu its tangent Jacobians). A benchmark, not a 
 
     python benchmarks/eskf_predict.py [--model ins_fc24_eskf] [--calls 200] [--repeats 400]
 
-The method and the bars of ``derive bench``'s SymForce peer (derive.apps.bench.symforce_peer):
+The method and the bars of ``derive bench``'s SymForce peer (derive.apps.bench.peers.symforce_peer):
 the same GCC, its four builds (double and float, -O2 and -O2 -march=native) and their bars,
 derive's C function and an extern "C" wrapper of SymForce's template, each in its own
 translation unit (non-inline calls), called interleaved on the same inputs; per call the
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from derive import catalog
-from derive.apps.bench.symforce_peer import BUILDS, EIGEN_SHIM, TIME_BARS, compiler_version
+from derive.apps.bench.peers.symforce_peer import BUILDS, EIGEN_SHIM, TIME_BARS, compiler_version
 from derive.apps.ins import symforce_eskf
 from derive.apps.verify import sensors_case
 from derive.generation import generate_units

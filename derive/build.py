@@ -269,6 +269,11 @@ def status_error(module: FilterModule, function: str, status: int, values: dict
                 check_row([parameter], values["p"])
         except DomainError as exc:
             return DomainError(f"{where}: {exc}")
+    present = next((s for s in module.interface.statuses
+                    if s.number == status and s.present), None)
+    if present is not None and values.get(present.present[0]) is not None:
+        named = nan_element(values[present.present[0]], function, present)
+        return NumericalError(f"{where}: {named}{present.message}")
     arguments = {a.name: a for a in module.functions.get(function,
                                                          module.functions.get("run")).arguments
                  if not a.output and len(a.dims) == 2 and a.dims[0] == a.dims[1]}
@@ -291,6 +296,30 @@ def status_error(module: FilterModule, function: str, status: int, values: dict
                         return PatternError(f"{where}: {name}[{i}][{j}] = {float(row[k])!r}"
                                             f"{which}: {mine[0]}")
     return NumericalError(f"{where}: " + " or ".join(texts or ["unknown check"]))
+
+
+def nan_element(rows, function: str, status) -> str:
+    """``step K: NAME (z[I]): `` for the first NaN of the measurements ``rows`` the call
+    was given (the step's z; run's ``(steps, m)`` then any track axes; run_tracks'
+    ``(tracks, steps, m)``, with `` (track T)``), for the status of the presence checks
+    ``status`` (its ``present``: the port and the measurement of each element)."""
+    port, names = status.present
+    array = np.asarray(rows, dtype=float)
+    if function == "run_tracks":  # (tracks, steps, m): steps first, then the track
+        array = np.moveaxis(array, 0, -1)
+    elif function != "run":  # one step: (m,), then any track axes
+        array = array[np.newaxis]
+    if array.ndim == 1:  # one measurement per step
+        array = array[:, np.newaxis]
+    nan = np.isnan(array.reshape(array.shape[:2] + (-1,))).any(axis=2)
+    if not nan.any():
+        return ""
+    step, index = (int(v) for v in np.argwhere(nan)[0])
+    where = f"step {step}: " if function in ("run", "run_tracks") else ""
+    if function == "run_tracks":
+        track = int(np.flatnonzero(np.isnan(array[step, index].reshape(-1)))[0])
+        where = f"step {step} (track {track}): "
+    return f"{where}{names[index]} ({port}[{index}]): "
 
 
 def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=True,
@@ -334,7 +363,7 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
         args += [buf(p), inputs["p"].size() if p.ndim == 2 else 0]
     status = fn(*args)
     if status:
-        raise status_error(module, "run_tracks", status, {"P0": P0, "p": p})
+        raise status_error(module, "run_tracks", status, {"P0": P0, "p": p, "z": zs})
     return xs if P0 is None else (xs, Ps)
 
 

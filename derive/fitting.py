@@ -174,7 +174,15 @@ def free_text(text: str, names: Sequence[str], positive: Sequence[str] = ()) -> 
 def fitted_text(text: str, values: dict[str, float]) -> str:
     """The model file ``text`` with each free parameter of ``values`` given its value
     (its example dropped): a model with nothing of those free, which ``derive generate``
-    takes as it takes any model file."""
+    takes as it takes any model file. A parameter the text's own ``[parameters]`` does
+    not declare (a composed block's) is refused: the file would keep it free."""
+    table = _table(text)
+    elsewhere = [name for name in values if name not in table]
+    if elsewhere:
+        raise FitError(f"parameter {elsewhere[0]!r} is not declared in the model file's own "
+                       "[parameters] (a composed block's?): the fitted file cannot give it "
+                       "its value")
+
     def change(name, spec):
         if name not in values:
             return spec
@@ -302,7 +310,7 @@ class _TrackRun:
             else:
                 array = (self.p if arg.name == "p" else
                          np.ascontiguousarray(given[arg.name], dtype=module.dtype))
-                if arg.rows:
+                if arg.strided:
                     strides.append(0)  # one row of p for every step
             self.keep.append(array)
             args.append(module.buffer(array))

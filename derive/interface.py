@@ -127,13 +127,17 @@ class Status:
     """A non-zero status of a program's function: its number and the failed check;
     ``zero``: for the pattern status, the flat indices of the checked input (P, or run's
     P0) that must be zero; ``parameter``: for a parameter's domain check, ``(index in p,
-    name, domain)`` (derive.domains), from which derive.build names the step and value."""
+    name, domain)`` (derive.domains), from which derive.build names the step and value;
+    ``present``: for the status of a program's presence checks, ``(port, names)``: the
+    port whose elements must not be NaN and the measurement each holds (``("z", ("zx",
+    "zy"))``), from which derive.build names the step and the measurement."""
 
     program: str
     number: int
     message: str
     zero: tuple[int, ...] = ()
     parameter: tuple = ()
+    present: tuple = ()
 
     def identifier(self) -> str:
         """The status's name in C's status enum, after the file's ``PREFIX_STATUS_``:
@@ -207,12 +211,21 @@ class Interface:
                 "statuses": [[s.program, s.number, s.message, list(s.zero)]
                              + ([list(s.parameter)] if s.parameter else [])
                              for s in self.statuses]}
+        present = {str(s.number): [s.present[0], list(s.present[1])]
+                   for s in self.statuses if s.present}
+        if present:
+            data["present"] = present
         if self.element != DEFAULT_ELEMENT:
             data["element"] = self.element
         if self.spaces:
             data["spaces"] = {"sizes": dict(self.spaces), "arrays": {
                 a.name: a.space for f in self.functions for a in f.arguments if a.space}}
         return MARKER + json.dumps(data, separators=(",", ":"), ensure_ascii=True)
+
+
+def _present(entry) -> tuple:
+    """A status's ``present`` from its JSON ``[port, [names]]`` (none: empty)."""
+    return () if entry is None else (entry[0], tuple(entry[1]))
 
 
 def read(header: str) -> Interface:
@@ -235,8 +248,10 @@ def read(header: str) -> Interface:
                                                   space=arrays.get(a[0], ""))
                                          for a in args))
                 for name, program, status, steps, args in data["functions"])
+            present = data.get("present", {})
             statuses = tuple(Status(program, int(number), message, tuple(zero),
-                                    tuple(parameter[0]) if parameter else ())
+                                    tuple(parameter[0]) if parameter else (),
+                                    _present(present.get(str(number))))
                              for program, number, message, zero, *parameter
                              in data["statuses"])
             element = data.get("element", DEFAULT_ELEMENT)

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 from derive.expression_lowering import STATE_PORTS, ExpressionLowerer, LoweringError
 from derive.single_use import fold_single_use
-from derive.statements import OPERATORS, ZERO, Assign, Check
+from derive.statements import OPERATORS, PRESENT, ZERO, Assign, Check
 from derive.trees import Const, Op, Tree, Var, depth, element_name, rename_tree, tree_kinds
 
 if TYPE_CHECKING:
@@ -42,17 +42,20 @@ class LoweredAssign:
 @dataclass(frozen=True)
 class LoweredCheck:
     """``tree`` is ``cmp(value, 0)``: fails unless value > 0 (``relation`` "positive"),
-    value >= 0 ("nonnegative") or value == 0 ("zero"); ``status`` numbers the check.
-    Every check but the zero checks has its own status, in order; the zero checks of a
-    program (its pattern) share the next one. ``parameter``: the name of the parameter
-    whose declared domain the check is (derive.statements.Check; empty for the others),
-    whose refused value generated Python names."""
+    value >= 0 ("nonnegative") or value == 0 ("zero"); or ``cmp(value, value)``: fails
+    for a NaN ("present", a measurement); ``status`` numbers the check.
+    Every check but the zero and presence checks has its own status, in order; the
+    presence checks of a program (its measurements) share the next one, the zero checks
+    (its pattern) the one after. ``parameter``: the name of the parameter whose declared
+    domain the check is (derive.statements.Check; empty for the others), whose refused
+    value generated Python names; ``measurement``: a presence check's measurement."""
 
     tree: Op
     message: str
     status: int
     relation: str = "positive"
     parameter: str = ""
+    measurement: str = ""
 
     @property
     def is_pattern(self) -> bool:
@@ -60,9 +63,22 @@ class LoweredCheck:
         return self.relation == "zero"
 
     @property
+    def is_presence(self) -> bool:
+        """True for a presence check: a measurement that must not be NaN."""
+        return self.relation == PRESENT
+
+    @property
     def operator(self) -> str:
         """How generated code compares the value with 0 (``>``, ``>=``, ``==``)."""
         return OPERATORS[self.relation]
+
+    def passes(self, value: str, zero: str = "0.0") -> str:
+        """The text of the test the check requires, given the printed value and zero:
+        ``value > 0.0`` (as :attr:`operator` says), ``value == value`` for a presence
+        check (false for NaN only)."""
+        if self.is_presence:
+            return f"{value} == {value}"
+        return f"{value} {self.operator} {zero}"
 
 
 @dataclass(frozen=True)
@@ -178,8 +194,10 @@ def lower_program(program: Program, *, use_fma: bool = False,
                              if isinstance(st, Assign) and st.target.name[1:].isdigit()),
                             default=-1), body)
     status = first_status - 1
-    pattern_status = first_status + sum(1 for st in program.body
-                                        if isinstance(st, Check) and st.relation != ZERO)
+    present_status = first_status + sum(1 for st in program.body if isinstance(st, Check)
+                                        and st.relation not in (ZERO, PRESENT))
+    pattern_status = present_status + any(isinstance(st, Check) and st.relation == PRESENT
+                                          for st in program.body)
     lanes = {t: (chunk, lane) for chunk in program.rows for lane, t in enumerate(chunk.targets)}
     statements = (fold_single_use(program.body, program.results, frozenset(lanes)) if use_fma
                   else program.body)
@@ -195,8 +213,12 @@ def lower_program(program: Program, *, use_fma: bool = False,
         if isinstance(st, Assign):
             body.append(LoweredAssign(st.target.name, cut(lowerer.lower(st.expr))))
             continue
-        tree = Op("cmp", (cut(lowerer.lower(st.value)), Const(0.0)))
-        if st.relation != ZERO:
+        value = cut(lowerer.lower(st.value))
+        tree = Op("cmp", (value, value if st.relation == PRESENT else Const(0.0)))
+        if st.relation == PRESENT:
+            body.append(LoweredCheck(tree, st.message, present_status, PRESENT,
+                                     measurement=st.measurement))
+        elif st.relation != ZERO:
             status += 1
             body.append(LoweredCheck(tree, st.message, status, st.relation, st.parameter))
         else:

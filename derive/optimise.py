@@ -31,11 +31,13 @@ from derive.statements import (
     NON_FINITE,
     NONNEGATIVE,
     POSITIVE,
+    PRESENT,
     Assign,
     Statement,
     Temporary,
     is_atom,
     live_statements,
+    rename,
     substitute,
 )
 from derive.trees import count_tree
@@ -101,7 +103,8 @@ def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...
             value = substitute(st.value, subst) if subst else st.value
             if value.is_number:
                 holds = (value.is_positive if st.relation == POSITIVE else
-                         value.is_nonnegative if st.relation == NONNEGATIVE else value.is_zero)
+                         value.is_nonnegative if st.relation == NONNEGATIVE else
+                         value.is_finite if st.relation == PRESENT else value.is_zero)
                 if holds is not True:
                     raise MatrixPropertyError(f"{st.message} (the value is structurally {value})")
             elif (st.relation, value) not in checked:
@@ -265,10 +268,10 @@ def _renumber(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ..
         if isinstance(st, Assign):
             names[st.target] = Temporary(f"t{len(names)}")
     out: list[Statement] = []
-    for st in body:
+    for st in body:  # an injective renaming: rebuilt without sympy's flatten
         if isinstance(st, Assign):
-            out.append(Assign(names[st.target], substitute(st.expr, names)))
+            out.append(Assign(names[st.target], rename(st.expr, names)))
         else:
-            out.append(replace(st, value=substitute(st.value, names)))
-    return out, {name: tuple(substitute(v, names) for v in values)
+            out.append(replace(st, value=rename(st.value, names)))
+    return out, {name: tuple(rename(v, names) for v in values)
                  for name, values in results.items()}

@@ -141,7 +141,7 @@ class SharedOptions:
         pattern_words="sensor=probability pairs separated by commas, e.g. gnss=0.999,baro=0.99",
         help="innovation gating per sensor (overrides --gate for the sensors named)")
     start: str = option(
-        "predict", flag="--start", kind=str, choices=START_CHOICES, needs="sensors",
+        "predict", flag="--start", kind=str, choices=START_CHOICES, needs="start",
         help="run's first step: predict then update (predict, the default), or update x0 "
              "with the first measurement without a prediction (update: pykalman's "
              "convention)")

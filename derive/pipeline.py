@@ -56,26 +56,27 @@ class Generated:
 
 
 def load_units(units: Sequence[Unit], lang: str = "all", directory: str | Path | None = None,
-               *, extra_cflags: Sequence[str] = (), compiler: str | None = None
-               ) -> list[Generated]:
+               *, extra_cflags: Sequence[str] = (), compiler: str | None = None,
+               cache: str | Path | None = None) -> list[Generated]:
     """Render, write and load ``units`` (see the module docstring); one
     :class:`Generated` per unit, in order. The C of all units is one extension, compiled
-    by ``compiler`` (build_c's: default CC, else gcc)."""
+    by ``compiler`` (build_c's: default CC, else gcc) into the compiled-module cache
+    ``cache`` (build_c's ``tmpdir``: default the user's)."""
     check_lang(lang)
     files: dict[str, dict[str, str]] = {}
     for unit in units:
         files.setdefault(unit.model, {}).update(render_files(unit, LANG_CHOICES[lang]))
     if directory is not None:
-        return _write_and_load(units, files, Path(directory), extra_cflags, compiler,
+        return _write_and_load(units, files, Path(directory), extra_cflags, compiler, cache,
                                keep=True)
     with tempfile.TemporaryDirectory(prefix="derive-") as scratch:
-        return _write_and_load(units, files, Path(scratch), extra_cflags, compiler,
+        return _write_and_load(units, files, Path(scratch), extra_cflags, compiler, cache,
                                keep=False)
 
 
 def _write_and_load(units: Sequence[Unit], files: Mapping[str, Mapping[str, str]],
                     directory: Path, extra_cflags: Sequence[str], compiler: str | None,
-                    keep: bool) -> list[Generated]:
+                    cache: str | Path | None, keep: bool) -> list[Generated]:
     written: dict[tuple[str, str], Path] = {}
     for model, texts in files.items():
         for name, path in zip(sorted(texts), write_files(directory, model, texts)):
@@ -85,8 +86,8 @@ def _write_and_load(units: Sequence[Unit], files: Mapping[str, Mapping[str, str]
         return written.get((unit.model, unit.filter + suffix))
 
     c_files = [path(u, ".c") for u in units if path(u, ".c") is not None]
-    extension = build_c(c_files, extra_cflags=extra_cflags, compiler=compiler) \
-        if c_files else None
+    extension = build_c(c_files, extra_cflags=extra_cflags, compiler=compiler,
+                        tmpdir=cache) if c_files else None
     loaded = []
     for unit in units:
         python = path(unit, ".py")
@@ -102,15 +103,16 @@ def _write_and_load(units: Sequence[Unit], files: Mapping[str, Mapping[str, str]
 def load_generated(model: ModelRef, filter: str, options: Mapping | SharedOptions | None = None,
                    lang: str = "all", directory: str | Path | None = None, *,
                    model_ref: str | None = None, out_label: str = "generated",
-                   extra_cflags: Sequence[str] = (), compiler: str | None = None
-                   ) -> Generated:
+                   extra_cflags: Sequence[str] = (), compiler: str | None = None,
+                   cache: str | Path | None = None) -> Generated:
     """Generate filter ``filter`` of ``model`` (a model, a catalog name or a model file)
     and load it: ``.python`` the module, ``.c`` the compiled wrappers.
 
     ``options`` are validated as by :func:`derive.generate`; ``model_ref`` and
     ``out_label`` name the model and output directory in the files' regenerate command;
     ``directory``: where ``MODEL/FILTER.*`` are written (default: a temporary one);
-    ``extra_cflags`` and ``compiler``: as :func:`derive.build.build_c` takes them.
+    ``extra_cflags``, ``compiler`` and ``cache`` (its ``tmpdir``): as
+    :func:`derive.build.build_c` takes them.
     """
     check_lang(lang)
     if isinstance(model, str):
@@ -118,7 +120,7 @@ def load_generated(model: ModelRef, filter: str, options: Mapping | SharedOption
         model = resolve_model(model)
     unit = command_unit(model, filter, options, model_ref, out_label)
     return load_units([unit], lang, directory, extra_cflags=extra_cflags,
-                      compiler=compiler)[0]
+                      compiler=compiler, cache=cache)[0]
 
 
 __all__ = ["Generated", "load_generated", "load_units"]

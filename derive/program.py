@@ -53,7 +53,7 @@ from __future__ import annotations
 import keyword
 import re
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from math import prod
 
 import sympy
@@ -68,6 +68,7 @@ from derive.statements import (
     NON_FINITE,
     NONNEGATIVE,
     POSITIVE,
+    PRESENT,
     ZERO,
     Assign,
     Check,
@@ -423,6 +424,44 @@ class Program:
             raise ProgramError(f"require_zero: {element!r} is not an input element of "
                                f"program {self.name!r}")
         self._body.append(Check(element, str(message), ZERO))
+
+    def renamed(self, name: str, doc: str, pattern_message: str | None = None) -> Program:
+        """This final program as the program ``name`` (documented ``doc``); its zero checks
+        fail with ``pattern_message`` when given."""
+        if not self._optimized:
+            raise ProgramError(f"renamed: program {self.name!r} is not final")
+        out = Program(name, self.inputs, self.outputs, doc)
+        body = [replace(st, message=pattern_message)
+                if pattern_message is not None and isinstance(st, Check) and st.relation == ZERO
+                else st for st in self._body]
+        out._body, out._results = body, dict(self._results)
+        out._defined = {st.target: k for k, st in enumerate(body) if isinstance(st, Assign)}
+        out._counter = len(out._defined)
+        out._optimized = True
+        out._order_names = dict(self._order_names)
+        out._rows = self._rows
+        return out
+
+    def with_presence_checks(self, port: str, names: Sequence[str], message: str) -> Program:
+        """This final program with a check that each element of the input ``port`` is not
+        NaN after its body (element k holds the measurement ``names[k]``), failing with
+        ``message``: one comparison (``cmp``) each, one status for them all (generated C
+        returns it before any output is written; derive.build and generated Python name
+        the element that was NaN). Appended, so the statuses of the checks already there
+        keep their numbers; a program whose measurements may be NaN by design (absent)
+        takes none."""
+        if not self._optimized:
+            raise ProgramError(f"with_presence_checks: program {self.name!r} is not final")
+        elements = self._elements[self._input(port).name]
+        if len(names) != len(elements):
+            raise ProgramError(f"with_presence_checks: {len(names)} names for the "
+                               f"{len(elements)} elements of port {port!r}")
+        checks = [Check(e, str(message), PRESENT, measurement=str(name))
+                  for e, name in zip(elements, names)]
+        out = self._final(self._body + checks, self._results)
+        out._order_names = dict(self._order_names)
+        out._rows = self._rows
+        return out
 
     # -- optimising --------------------------------------------------------------------
 

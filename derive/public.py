@@ -1,6 +1,6 @@
 """What the generator offers the applications of ``derive/apps/`` (verify, reports,
 bench, GNSS, INS, targets): the modules they may import and, of each, the names. The
-applications import nothing else of the generator (``tests/test_house_apps_api.py``);
+applications import nothing else of the generator (``tests/house/test_house_apps_api.py``);
 a module is imported whole (``from derive import catalog``) or for the names given.
 
 Not offered: the command line (``derive.cli``: an application calls the functions a
@@ -11,10 +11,11 @@ APPLICATIONS: dict[str, tuple[str, ...]] = {
     "derive.arrivals": ("operation_latency",),
     "derive.batch": (),
     "derive.build": ("BuildEnvironmentError", "BuildError", "FilterModule", "STRICT_CFLAGS",
-                     "cache_dir", "cached_extension", "compiler_command", "load_module_file",
-                     "parse_interface"),
+                     "build_c", "cache_dir", "cached_extension", "compiler_command",
+                     "load_module_file", "parse_interface"),
     "derive.catalog": ("read_text",),
     "derive.commands": (),
+    "derive.domains": ("declared_domain",),
     "derive.emit.library": ("render_build_files", "render_test_program", "test_program_name"),
     "derive.emit.render": ("render_files", "render_unit"),
     "derive.emit.write": ("write_files",),
@@ -32,6 +33,7 @@ APPLICATIONS: dict[str, tuple[str, ...]] = {
                                "transition_function", "uses_sensor_run"),
     "derive.filters.spec": ("Conditioned", "FilterSpec", "INNOVATION", "LAINIOTIS",
                             "NEXT_PRIOR", "NOISE", "NOMINAL", "POSTERIOR", "PRIOR", "UPDATE"),
+    "derive.fitting": ("KERNEL_CFLAGS", "fit", "kernel", "kernel_filter", "split_columns"),
     "derive.flops": ("LANGUAGES", "c_function_body", "count", "count_c_function",
                      "count_c_text"),
     "derive.guards": ("SELECTS", "IfGreater", "numpy_selects"),

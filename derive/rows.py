@@ -26,8 +26,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import sympy
+from sympy.core.basic import _args_sortkey
 
 from derive.expression_lowering import constant_value
 from derive.statements import Temporary
@@ -38,6 +40,16 @@ from derive.trees import Const, Op, Tree, Var
 #: registers; four floats: one SSE or NEON register).
 VECTOR_LANES = 4
 VECTOR_TYPES = {"double": "derive_vd", "float": "derive_vf"}
+
+
+def _product(a: sympy.Expr, b: sympy.Expr) -> sympy.Expr:
+    """``a * b`` as sympy builds it; of two distinct commutative symbols (most lanes'
+    products: a coefficient and an element) the canonical Mul directly, its arguments in
+    sympy's order, without Mul's flattening (about 3 µs against 24 µs)."""
+    if (a.is_Symbol and b.is_Symbol and a != b and a.is_commutative
+            and b.is_commutative):
+        return sympy.Mul._from_args(tuple(sorted((a, b), key=_args_sortkey)), True)
+    return sympy.Mul(a, b)
 
 
 def _leaf(atom: sympy.Expr) -> Tree:
@@ -63,10 +75,22 @@ class LaneSum:
 
     def expr(self, lane: int) -> sympy.Expr:
         """The lane's value as a sympy expression (what the program's statement holds)."""
-        value = sympy.S.Zero if self.base is None else self.base[lane]
-        for sign, coef, sources in self.terms:
-            value = value + sign * coef * sources[lane]
-        return value
+        return self._exprs[lane]
+
+    @cached_property
+    def _exprs(self) -> tuple[sympy.Expr, ...]:
+        """Every lane's expression, built once (a program's assembly checks its chunks
+        against the statements it was built from): one Add of the base and the products,
+        the same canonical expression as adding the terms one by one, without flattening
+        the growing sum again at each term."""
+        out = []
+        for lane in range(self.lanes):
+            parts = [] if self.base is None else [self.base[lane]]
+            for sign, coef, sources in self.terms:
+                product = _product(coef, sources[lane])
+                parts.append(product if sign > 0 else -product)
+            out.append(sympy.Add(*parts))
+        return tuple(out)
 
     def reads(self, lane: int) -> set[sympy.Symbol]:
         """The symbols lane ``lane`` reads."""

@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import sympy
+from sympy.core.basic import _args_sortkey
 
 
 class InputElement(sympy.Symbol):
@@ -31,31 +32,39 @@ class Assign:
     expr: sympy.Expr
 
 
-#: The relations a runtime check can require of its value.
-POSITIVE, ZERO, NONNEGATIVE = "positive", "zero", "nonnegative"
-#: How generated code compares a checked value with 0, per relation.
-OPERATORS = {POSITIVE: ">", ZERO: "==", NONNEGATIVE: ">="}
+#: The relations a runtime check can require of its value (PRESENT: not NaN, an input
+#: element compared with itself).
+POSITIVE, ZERO, NONNEGATIVE, PRESENT = "positive", "zero", "nonnegative", "present"
+#: How generated code compares a checked value with 0 (with itself for PRESENT), per
+#: relation.
+OPERATORS = {POSITIVE: ">", ZERO: "==", NONNEGATIVE: ">=", PRESENT: "=="}
 
 
 @dataclass(frozen=True)
 class Check:
     """Runtime check ``value > 0`` (``relation`` POSITIVE, a pivot), ``value >= 0``
-    (NONNEGATIVE) or ``value == 0`` (ZERO: an input element outside a declared sparsity
-    pattern); ``value`` is an atom. A NaN fails every relation. Fails with ``message``.
+    (NONNEGATIVE), ``value == 0`` (ZERO: an input element outside a declared sparsity
+    pattern) or ``value == value`` (PRESENT: a measurement that is not NaN); ``value`` is
+    an atom. A NaN fails every relation. Fails with ``message``.
 
     ``parameter``: for the check of a free parameter's declared domain (``value`` an
     element of ``p``; derive.domains), the parameter's name: generated Python names the
     value it refuses, and the check is dropped with the dead code when nothing else in
-    the program reads that element; empty for every other check."""
+    the program reads that element; empty for every other check. ``measurement``: for a
+    presence check, the name of the measurement ``value`` holds (the presence checks of a
+    program share one status, and what fails names the measurement)."""
 
     value: sympy.Expr
     message: str
     relation: str = POSITIVE
     parameter: str = ""
+    measurement: str = ""
 
     @property
     def text(self) -> str:
-        """``value > 0``, ``value >= 0`` or ``value == 0``."""
+        """``value > 0``, ``value >= 0``, ``value == 0`` or ``value == value``."""
+        if self.relation == PRESENT:
+            return f"{self.value} == {self.value}"
         return f"{self.value} {OPERATORS[self.relation]} 0"
 
 
@@ -96,6 +105,16 @@ def live_statements(body: Sequence[Statement], results: Mapping[str, tuple]) -> 
                                      and st.value not in read)]
 
 
+def rename(expr: sympy.Basic, names: Mapping[sympy.Symbol, sympy.Symbol]) -> sympy.Basic:
+    """:func:`substitute` for ``names`` an injective map of symbols to symbols (the
+    temporaries renumbered), without sympy's flatten: an injective renaming merges no
+    terms and no factors, so a sum or product rebuilt is its renamed arguments in
+    sympy's order (the number first, the rest by ``_args_sortkey``, as flatten leaves
+    them), built as they are. The same expression as substitute's, argument order
+    included."""
+    return _replaced(expr, names, renaming=True)
+
+
 def substitute(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic]) -> sympy.Basic:
     """``expr.xreplace(mapping)``, except that an applied function whose arguments are
     not all numbers after the replacement is rebuilt without its ``eval``: sympy's
@@ -103,6 +122,11 @@ def substitute(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic]) ->
     sign to pull out, assumption queries that cost milliseconds an argument (a sum of
     a state and a sigma-point offset) and find nothing for the atoms derive substitutes.
     The result equals xreplace's wherever that ``eval`` would not rewrite the call."""
+    return _replaced(expr, mapping, renaming=False)
+
+
+def _replaced(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic],
+              renaming: bool) -> sympy.Basic:
     memo: dict[sympy.Basic, sympy.Basic] = {}
 
     def walk(node: sympy.Basic) -> sympy.Basic:
@@ -117,6 +141,10 @@ def substitute(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic]) ->
         args = tuple(walk(arg) for arg in node.args)
         if all(new is old for new, old in zip(args, node.args)):
             out = node
+        elif renaming and (node.is_Add or node.is_Mul) and node.is_commutative:
+            lead = 1 if args[0].is_Number else 0
+            out = node.func._from_args(args[:lead] + tuple(sorted(args[lead:],
+                                                                  key=_args_sortkey)), True)
         elif isinstance(node, sympy.Function) and not all(a.is_number for a in args):
             out = node.func(*args, evaluate=False)
         else:

@@ -34,7 +34,7 @@ from ..statements import Assign
 from . import burden_formula, formulas
 
 #: Flops are counted on the Python lowering; the C lowering (with fma, 2 flops each)
-#: has the same flops by construction, which tests/test_burden.py checks.
+#: has the same flops by construction, which tests/commands/test_burden.py checks.
 LANG = "python"
 FIR_EPSILONS = (1e-3, 1e-6, 1e-9)
 FIR_NORM = "spectral norm ||A^N||_2 (largest singular value)"

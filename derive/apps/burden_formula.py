@@ -90,7 +90,7 @@ class Family:
     def counts(self, sizes: Sizes, series: Sequence[str] = SERIES) -> dict[str, int]:
         """``{series: value}`` of the step at ``sizes``, counting only the lowerings that
         ``series`` need (the flops are the Python lowering's; C's are the same, since
-        fusing never adds or drops an operation, which tests/test_burden.py checks)."""
+        fusing never adds or drops an operation, which tests/commands/test_burden.py checks)."""
         out = {}
         for name in series:
             if name == "flops":

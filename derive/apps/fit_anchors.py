@@ -7,7 +7,8 @@ measurements (and inputs) as derive fit reads them.
   ``sq`` and ``sr`` of its transition and observation covariances (Q = sq Q_robot, R = sr
   R_robot; Q_robot and R_robot symmetrised, their transposes differ in the last
   digits). Step k (0..499) predicts with offset k, an input (B = I), and updates with
-  observation k + 1 less the observation offset (a masked one missing); the run starts
+  observation k + 1 less the observation offset (a masked one NaN: only observation 0 is
+  masked, the one the run does not use); the run starts
   from the data set's initial state mean and covariance.
 - **receiver**: gnss-benchmark's moving receiver (derive.apps.gnss.data's data set, its
   reference trajectory at 1 Hz, 1158 epochs; ``pip install gnss-benchmark``), its

@@ -23,10 +23,9 @@ import numpy as np
 import sympy
 from statsmodels.tsa.statespace.mlemodel import MLEModel
 
-from derive.build import build_c
 from derive.domains import declared_domain
 from derive.fitting import KERNEL_CFLAGS, fit, kernel, kernel_filter, split_columns
-from derive.generation import generate
+from derive.pipeline import load_generated
 
 
 @dataclass(frozen=True)
@@ -181,9 +180,7 @@ def bench(model, data, *, start=None, repeats: int = 5) -> FitBench:
     with tempfile.TemporaryDirectory() as tmp:  # generation and a compilation from cold
         began = time.perf_counter()
         name, options = kernel_filter(model, zs)
-        (c_file,) = [p for p in generate(model, [name], "c", tmp, options=options)
-                     if p.suffix == ".c"]
-        build_c(c_file, extra_cflags=KERNEL_CFLAGS, tmpdir=tmp)
+        load_generated(model, name, options, "c", tmp, extra_cflags=KERNEL_CFLAGS, cache=tmp)
         generation = time.perf_counter() - began
     generated = kernel(model, zs)
     ours, theirs = [], []

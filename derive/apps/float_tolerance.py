@@ -108,9 +108,10 @@ step the values each program was called with):
 What it leaves out, stated: second-order terms (the bound is first order, as the
 running error analysis is); the EKF's linearisation's own dependence on x's error (the
 change of F, H and of the gain through H, second derivatives of f and h: zero for a
-linear model); a gate's decision, taken as the reference run's; the reset Jacobian G of
-an error-state filter's option ``reset`` in the maps (G = I to first order in the
-injected dx).
+linear model: not small next to P's part on the INS models, below the value there, which
+x's part sets; docs/generated-code.md has the estimate); a gate's decision, taken as the
+reference run's; the reset Jacobian G of an error-state filter's option ``reset`` in the
+maps (G = I to first order in the injected dx).
 
 A bound at or above 1 says the model cannot be computed meaningfully in float32;
 :attr:`FloatTolerance.meaningful` says so and the verification reports it failed.

@@ -617,7 +617,7 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "WITNESS_POINTS", "WITNESS_TOLERANCE",
            "InputRun", "JacobianWitness", "NonlinearScenario", "SensorsCase", "Verification",
-           "conditioning_run", "error_floor", "jacobian_witness", "linear_run",
+           "conditioning_run", "jacobian_witness", "linear_run",
            "nonlinear_reference",
            "nonlinear_scenario", "parameter_values", "relative_error", "rounding_floor",
            "sensors_case",

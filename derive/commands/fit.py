@@ -1,5 +1,7 @@
 """`derive fit MODEL DATA...`: maximum-likelihood estimates of a model's free parameters."""
 
+from contextlib import contextmanager
+
 NAME = "fit"
 ORDER = 47
 HELP = ("maximum-likelihood estimates of a model's free parameters from measurement "
@@ -60,7 +62,8 @@ def run(args) -> int:
         split_columns,
         write_model_file,
     )
-    from ..modelfile import loads_model
+    from ..generation import is_model_file
+    from ..modelfile import load_model_file, loads_model
     from .verify import parameter_values
 
     if args.anchor:
@@ -68,8 +71,9 @@ def run(args) -> int:
             raise ModelError("--anchor takes no MODEL or DATA (it brings its own)")
         from ..apps import fit_anchors  # the anchors' data sets are optional packages
 
-        text = getattr(fit_anchors, f"{args.anchor}_model_text")()
-        label, tracks = args.anchor, [getattr(fit_anchors, f"{args.anchor}_data")()]
+        with optional(f"--anchor {args.anchor}"):
+            text = getattr(fit_anchors, f"{args.anchor}_model_text")()
+            label, tracks = args.anchor, [getattr(fit_anchors, f"{args.anchor}_data")()]
     else:
         if not args.model or not args.data:
             raise ModelError("derive fit takes MODEL and at least one DATA file (or --anchor)")
@@ -77,14 +81,18 @@ def run(args) -> int:
         tracks = [read_data(path) for path in args.data]
     if args.free or args.positive:
         text = free_text(text, args.free, args.positive)
-    model = loads_model(text, source=label)
+    # a model file as a file (its [compose] paths relative to it), unless its text changed
+    model = (loads_model(text, source=label) if args.anchor or args.free or args.positive
+             or not is_model_file(args.model) else load_model_file(args.model))
+    if args.out:  # refused before the work: a parameter the file's text cannot set
+        fitted_text(text, {p.name: 1.0 for p in model.parameters})
     for i, track in enumerate(tracks):
         split_columns(model, track, args.data[i] if args.data else label)
     start = parameter_values(args.start)
     timed = None
     if args.bench:  # first: its generation from cold, before the fit's warms any cache
-        from ..apps.fit_peer import bench  # statsmodels: an optional peer
-
+        with optional("--bench"):
+            from ..apps.fit_peer import bench  # statsmodels: an optional peer
         timed = bench(model, tracks[0], start=start)
     result = fit(model, tracks if len(tracks) > 1 else tracks[0], start=start,
                  progress=False if args.no_progress else None)
@@ -97,3 +105,16 @@ def run(args) -> int:
     for line in timed.lines() if timed is not None else ():
         print(line)
     return 0
+
+
+@contextmanager
+def optional(what: str):
+    """An optional package missing for ``what``: one line naming it (ModelError, exit 2)."""
+    from ..errors import ModelError
+
+    try:
+        yield
+    except ModuleNotFoundError as exc:
+        package = (exc.name or "").split(".")[0].replace("_", "-")
+        raise ModelError(f"{what} needs the package {package} (pip install {package})"
+                         ) from None

@@ -101,8 +101,8 @@ class VectorStatements:
         scalar = CPrinter(lambda v: names(v)[0], precision=self.scalar.precision)
         for st in lanes.shared:  # of the parameters alone: once, as in the scalar step
             if isinstance(st, LoweredCheck):  # before every block's check, as there
-                self.lines += [f"if (!({scalar.expression(st.tree.args[0])} {st.operator} "
-                               f"0.0) && !{status}) {{", f"    {status} = {st.status};", "}"]
+                self.lines += [f"if (!({st.passes(scalar.expression(st.tree.args[0]))}) "
+                               f"&& !{status}) {{", f"    {status} = {st.status};", "}"]
                 continue
             name = f"{self.prefix}{st.target}"
             self.lines.append(f"const {self.scalar.precision.c_type} {name} = "
@@ -114,11 +114,11 @@ class VectorStatements:
             if isinstance(st, LoweredAssign):
                 temps[st.target] = self.value(st.tree, names)
             else:
-                checked.append((*self.value(st.tree.args[0], names), st.operator))
+                checked.append((*self.value(st.tree.args[0], names), st))
         for c, b in lanes.order:
-            text, vector, operator = checked[c]
+            text, vector, check = checked[c]
             value = f"{text}[{b}]" if vector else text
-            self.lines += [f"if (!({value} {operator} 0.0) && !{status}) {{",
+            self.lines += [f"if (!({check.passes(value)}) && !{status}) {{",
                            f"    {status} = {lanes.statuses[c][b]};", "}"]
         outputs = {}
         for port, leaves in lanes.block.results:

@@ -335,10 +335,14 @@ def row_pointer(name: str) -> str:
 
 def loop_head(loop: Steps) -> str:
     """The C loop over a stepping run's steps: from 0, two a pass, or on from where the
-    loop before stopped (``rest``)."""
+    loop before stopped (``rest``); step 0 alone (``first``) or from ``start``."""
     if loop.by == 2:
         return "for (k = 0; k + 2 <= steps; k += 2) {"
-    return "for (; k < steps; ++k) {" if loop.rest else "for (k = 0; k < steps; ++k) {"
+    if loop.rest:
+        return "for (; k < steps; ++k) {"
+    if loop.first:
+        return "for (k = 0; k < steps && k < 1; ++k) { /* update-first: step 0 alone */"
+    return f"for (k = {loop.start}; k < steps; ++k) {{"
 
 
 def _block(name: str) -> str:

@@ -207,6 +207,19 @@ def pattern_check_lines(check: LoweredCheck, element: str | None = None,
             "}"]
 
 
+def presence_lines(checks: list[LoweredCheck], printer: CPrinter,
+                   status: str | None = None) -> list[str]:
+    """One test of the presence checks of a program (they share one status): the
+    comparisons joined by ``&`` (no branch between them, so a loop over tracks around them
+    is still vectorised), then the status returned, or set in ``status`` when it is 0."""
+    test = " & ".join(f"({c.passes(printer.expression(c.tree.args[0]))})" for c in checks)
+    comment = f"/* {comment_text(checks[0].message)} */"
+    if status is not None:
+        return [f"if (!({test}) && !{status}) {{",
+                f"    {status} = {checks[0].status}; {comment}", "}"]
+    return [f"if (!({test})) {{", f"    return {checks[0].status}; {comment}", "}"]
+
+
 def function_parts(lowered: LoweredProgram, prefix: str,
                    precision: Precision = DOUBLE) -> dict:
     """Precomputed strings of one function: ``signature`` and ``body`` lines (unindented)."""
@@ -240,6 +253,14 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
     while at < len(statements):
         st = statements[at]
         at += 1
+        if isinstance(st, LoweredCheck) and st.is_presence:  # a program's share one status
+            group = [st]
+            while (at < len(statements) and isinstance(statements[at], LoweredCheck)
+                   and statements[at].is_presence):
+                group.append(statements[at])
+                at += 1
+            body += presence_lines(group, printer, status)
+            continue
         chunk = chunks.get(st.target) if isinstance(st, LoweredAssign) else None
         if chunk is not None:
             lanes = statements[at - 1:at - 1 + len(chunk.targets)]
@@ -255,16 +276,18 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
             body += pattern_check_lines(st, precision=precision)
         elif status is not None:
             value = printer.expression(st.tree.args[0])
-            body += [f"if (!({value} {st.operator} {precision.zero()}) && !{status}) {{",
+            body += [f"if (!({st.passes(value, precision.zero())}) && !{status}) {{",
                      f"    {status} = {st.status}; /* {comment_text(st.message)} */",
                      "}"]
         else:
             value = printer.expression(st.tree.args[0])
-            body += [f"if (!({value} {st.operator} {precision.zero()})) {{",
+            body += [f"if (!({st.passes(value, precision.zero())})) {{",
                      f"    return {st.status}; /* {comment_text(st.message)} */",
                      "}"]
+    early = set() if vectors is None else vectors.scalar_early
     scalar = [f"{place(name, k)} = {printer.expression(leaf)};"
-              for name, leaves in lowered.results for k, leaf in enumerate(leaves)]
+              for name, leaves in lowered.results for k, leaf in enumerate(leaves)
+              if (name, k) not in early]
     if vectors is None:
         return body + scalar
     # a scalar statement only chunks' vectors read (their lanes, in the scalar form, are

@@ -197,6 +197,16 @@ class ChunkPrinter:
                                 [("store", port, first, self._operand(tuple(run)))])
                 else:
                     self.stores += [(port, first + k) for k in range(len(run))]
+        # the scalar form writes an output entry that is a chunk's lane right after the
+        # lane's statement (at the end, every entry would stay live to the end of the
+        # function: ins_fc24's update_baro spilled 300 of them)
+        self.scalar_stores: dict[str, list[tuple[str, int]]] = {}
+        for port, leaves in lowered.results:
+            for k, leaf in enumerate(leaves):
+                if isinstance(leaf, Var) and leaf.name in self.order:
+                    self.scalar_stores.setdefault(leaf.name, []).append((port, k))
+        self.scalar_early = {entry for entries in self.scalar_stores.values()
+                             for entry in entries}
         self._liveness(lowered)
 
     def _liveness(self, lowered: LoweredProgram) -> None:
@@ -342,7 +352,9 @@ class ChunkPrinter:
     def lines(self, chunk: LoweredChunk, scalar_lines: list[str], place) -> list[str]:
         """The chunk in both forms: the vector statement, the lanes read one by one and
         the vector stores of outputs it completes, else ``scalar_lines`` (its live lanes'
-        own statements). ``place(port, index)``: the C text of an output element."""
+        own statements) and the output entries that are its lanes (:attr:`scalar_early`:
+        the caller's scalar stores at the end leave them out). ``place(port, index)``: the
+        C text of an output element."""
         name = f"v_{chunk.targets[0]}"
         real = self.precision.c_type
         return ([OPEN, *self.expressions[chunk.targets[0]]]
@@ -351,7 +363,9 @@ class ChunkPrinter:
                 + [item[1] if item[0] == "line" else
                    f"*({self.vtype}_unaligned *)&{place(item[1], item[2])} = {item[3]};"
                    for item in self.early.get(chunk.targets[0], ())]
-                + [ELSE] + scalar_lines + [CLOSE])
+                + [ELSE] + scalar_lines
+                + [f"{place(port, k)} = {t};" for t in chunk.targets
+                   for port, k in self.scalar_stores.get(t, ())] + [CLOSE])
 
 
 __all__ = ["CLOSE", "ChunkPrinter", "ELEMENTWISE_FMA", "ELSE", "OPEN", "SWITCH", "VFMA", "VFNMA",

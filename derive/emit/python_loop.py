@@ -20,8 +20,8 @@ index (the bytes kept so far over a row's: no counter per step).
 
 from __future__ import annotations
 
-from derive.emit.python_printer import PythonPrinter
-from derive.lowering import MAX_DEPTH, LoweredAssign, LoweredProgram
+from derive.emit.python_printer import PythonPrinter, presence_labels
+from derive.lowering import MAX_DEPTH, LoweredAssign, LoweredCheck, LoweredProgram
 from derive.program import PARAMETER_PORT
 from derive.runs.loops import Call, Row, Run, Store, walk
 from derive.trees import Op, Var, tree_vars
@@ -178,17 +178,26 @@ def _loop_lines(lowered: LoweredProgram, step_inputs: tuple[str, ...],
     direct = _direct_state(lowered, leaves, name_of, inlined)
     printer = PythonPrinter(lambda var: direct.get(var.name) or name_of(var))
     width = len(kept)
+    where = f'f"step {{len(rows) // {8 * width}}}: "'
+    presence = [st for st in lowered.body if isinstance(st, LoweredCheck) and st.is_presence]
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             if st.target not in inlined:
                 tree = _substitute(st.tree, inlined)
                 body.append(f"{direct.get(st.target, st.target)} = {printer.expression(tree)}")
+        elif st.is_presence:  # a program's share one status: one test, at the first
+            if st is presence[0]:
+                values = [printer.expression(_substitute(c.tree.args[0], inlined))
+                          for c in presence]
+                test = " and ".join(c.passes(v) for c, v in zip(presence, values))
+                body += [f"if not ({test}):  # noqa: PLR0124 (false for NaN only)",
+                         f"    raise NumericalError({where} + _nan_named(({', '.join(values)},"
+                         f"), {presence_labels(presence)!r}, {st.message!r}))"]
         else:
             value = printer.expression(_substitute(st.tree.args[0], inlined))
             named = f' + f", got {{{value}!r}}"' if st.parameter else ""  # a parameter's value
-            body += [f"if not {value} {st.operator} 0.0:",
-                     f'    raise NumericalError(f"step {{len(rows) // {8 * width}}}: " '
-                     f'+ {st.message!r}{named})']
+            body += [f"if not {st.passes(value)}:",
+                     f"    raise NumericalError({where} + {st.message!r}{named})"]
     kept_now = [printer.expression(leaf) for leaf in _kept_leaves(carried, results, text)]
     body += _wrap(f"keep(pack({', '.join(kept_now)}))")
     # the rest of the state (a leaf that reads the old state is bound first, so no

@@ -15,7 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from derive.errors import NumericalError, PatternError
-from derive.lowering import LoweredAssign, LoweredProgram, lower_program
+from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram, lower_program
 from derive.program import PARAMETER_PORT
 from derive.trees import Const, Op, Tree, Var
 
@@ -121,6 +121,25 @@ HELPERS = {
               '        positive = positive.all()',
               '    if not positive:',
               '        raise NumericalError(message)'],
+    "present": ['def _nan_named(values, labels, message):',
+                '    """message, after the label of the first of values that is NaN (in any',
+                '    track)."""',
+                '    for value, label in zip(values, labels):',
+                '        same = value == value  # noqa: PLR0124 (false for NaN only)',
+                '        if not (same.all() if hasattr(same, "all") else same):',
+                '            return f"{label}: {message}"',
+                '    return message',
+                '',
+                '',
+                'def _require_present(values, labels, message):',
+                '    """Raise NumericalError naming the measurement unless no value is NaN',
+                '    (every track of an array); a comparison each."""',
+                '    present = True',
+                '    for value in values:',
+                '        same = value == value  # noqa: PLR0124 (false for NaN only)',
+                '        present = (same.all() if hasattr(same, "all") else same) and present',
+                '    if not present:',
+                '        raise NumericalError(_nan_named(values, labels, message))'],
     "domain": ['def _require_domain(value, operator, message):',
                '    """Raise NumericalError naming the value unless value > 0 (operator ">") or',
                '    value >= 0 (">="): a parameter\'s declared domain (every track of an array;',
@@ -255,8 +274,11 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
             needed.append(kind)
     if any(lp.pattern_checks for lp in lowered):
         needed.append("pattern")
-    if any(c for lp in lowered for c in lp.checks if not (c.is_pattern or c.parameter)):
+    if any(c for lp in lowered for c in lp.checks
+           if not (c.is_pattern or c.parameter or c.is_presence)):
         needed.append("check")
+    if any(c.is_presence for lp in lowered for c in lp.checks):
+        needed.append("present")
     if any(c.parameter for lp in lowered for c in lp.checks):
         needed.append("domain")
     return needed
@@ -293,9 +315,13 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     printer = PythonPrinter()
     params = signature_parameters(lowered)
     body: list[str] = square_input_lines(lowered) + pattern_check_lines(lowered)
+    presence = [st for st in lowered.body if isinstance(st, LoweredCheck) and st.is_presence]
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             body.append(f"{st.target} = {printer.expression(st.tree)}")
+        elif st.is_presence:  # a program's share one status: one call, at the first
+            if st is presence[0]:
+                body.append(presence_call(presence, printer.expression))
         elif st.parameter:
             value = printer.expression(st.tree.args[0])
             body.append(f"_require_domain({value}, {st.operator!r}, {st.message!r})")
@@ -309,6 +335,18 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     if doc_lines is None:
         doc_lines = port_doc_lines(lowered)
     return {"signature": f"def {lowered.name}({params}):", "doc": doc_lines, "body": body}
+
+
+def presence_labels(checks: list[LoweredCheck]) -> tuple[str, ...]:
+    """How an error names each checked measurement: ``zx (z[0])``."""
+    return tuple(f"{c.measurement} ({c.tree.args[0].name})" for c in checks)
+
+
+def presence_call(checks: list[LoweredCheck], expression: Callable[[Tree], str]) -> str:
+    """The call of ``_require_present`` for a program's presence checks."""
+    values = ", ".join(expression(c.tree.args[0]) for c in checks)
+    return (f"_require_present(({values},), {presence_labels(checks)!r}, "
+            f"{checks[0].message!r})")
 
 
 def unread_parameters(lowered: LoweredProgram) -> bool:

@@ -65,6 +65,13 @@ class _Printer:
             return f"{name}[{source.row}].reshape(({source.size},) + {name}.shape[3:])"
         return f"{name}[{source.row}]"
 
+    def checked(self, loop: Steps) -> bool:
+        """True when a program the loop calls has a check that raises NumericalError (the
+        loop then names the step of a failure, as the one-track branch does)."""
+        return any(isinstance(node, Call) and any(not c.is_pattern
+                                                  for c in self.lowered[node.program].checks)
+                   for node in walk(loop.body))
+
     def call(self, call: Call, outputs: str) -> str:
         lp = self.lowered[call.program]
         bound = dict(call.args)
@@ -132,8 +139,18 @@ class _Printer:
                           f"{indent}    {self.names[node.array]}[k, i] = {node.state}[i]"]
             elif isinstance(node, Steps):
                 lines.append(f"{indent}for k in range(steps - {node.down}, -1, -1):"
-                             if node.down else f"{indent}for k in range(steps):")
-                lines += self.nodes(node.body, indent + "    ")
+                             if node.down else
+                             f"{indent}for k in range(min(steps, 1)):  # update-first: step 0"
+                             if node.first else
+                             f"{indent}for k in range({node.start}, steps):" if node.start
+                             else f"{indent}for k in range(steps):")
+                if not self.checked(node):
+                    lines += self.nodes(node.body, indent + "    ")
+                    continue
+                lines += ([f"{indent}    try:"] + self.nodes(node.body, indent + "        ")
+                          + [f"{indent}    except NumericalError as failure:  # name the step",
+                             f'{indent}        raise type(failure)(f"step {{k}}: {{failure}}")'
+                             " from None"])
             else:
                 raise TypeError(f"no Python for {node!r}")
         return lines

@@ -131,8 +131,12 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
         # a domain check's relation is named as its domain ("positive", "nonnegative")
         parameters = {c.status: (c.tree.args[0].index, c.parameter, c.relation)
                       for c in lp.checks if c.parameter}
+        presence = [c for c in lp.checks if c.is_presence]  # one status, the element named
+        present = ({presence[0].status: (presence[0].tree.args[0].base,
+                                         tuple(c.measurement for c in presence))}
+                   if presence else {})
         statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()),
-                                      parameters.get(number, ()))
+                                      parameters.get(number, ()), present.get(number, ()))
                      for number in sorted(messages)]
     spaces = ({"storage": unit.n, "tangent": unit.nt}
               if unit is not None and unit.nt != unit.n else {})
@@ -432,7 +436,8 @@ def render_python(unit: Unit) -> dict[str, str]:
     stores = [s for s in walk(run.loops) if isinstance(s, Store)]
     ports = {p.name: p for p in lowered["step"].inputs}  # a store of the carried state only
     if (kinds.BUILDERS[unit.kind] is kinds.stepping and "enter" not in lowered
-            and "store" not in lowered and all(s.state in ports for s in stores)):
+            and "store" not in lowered and all(s.state in ports for s in stores)
+            and not unit.update_first):
         # one track: the step's statements inline (derive.emit.python_loop), from the start
         # arrays (a predictor's from init(x0), computed before the loop)
         arrays = {a.c_name: a.py_name for a in args if not a.output}
@@ -477,6 +482,24 @@ def status_enum(prefix: str, described: interface.Interface) -> list[str]:
             + ["};"])
 
 
+def _run_on_track(unit: Unit, status: bool) -> list[str]:
+    """run_tracks' call of run on track t's arrays (optional ones may be NULL)."""
+    sizes = run_sizes(unit)
+
+    def track_array(arg: Argument) -> str:
+        if arg.c_name == PARAMETER_PORT:
+            return arg.c_name
+        size = " * ".join(str(sizes.get(d, d)) for d in arg.dims)
+        part = f"{arg.c_name} + t * {size}"
+        return f"{arg.c_name} ? {part} : NULL" if arg.optional else part
+
+    call = f"{unit.prefix}_run(steps, " + ", ".join(
+        track_array(a) for a in run_arguments(unit)) + (
+        f", {P_STRIDE})" if unit.parameters else ")")
+    return ([f"const int track_status = {call};", "if (track_status) {",
+             "    return track_status;", "}"] if status else [f"{call};"])
+
+
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     real = precision(unit.precision)
@@ -496,7 +519,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
                          c_run=unit.run_function, tracks=unit.run_tracks, unit=unit)
     status = any(lp.has_checks for lp in lps)
-    args = run_arguments(unit)
     prefix = unit.prefix
     # names verbatim (C is case sensitive): models Axis and axis get distinct macros
     size_defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
@@ -533,41 +555,33 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                   for line in c_printer.pattern_check_lines(c, start_element(c), real)]
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"), real)]
-    batch = unit.run_tracks
-    run_args = {a.c_name: a for a in args}
-    sizes = run_sizes(unit)
-
-    def track_array(name: str) -> str:
-        """Track t's part of a run_tracks argument (optional ones may be NULL)."""
-        arg = run_args[name]
-        size = " * ".join(str(sizes.get(d, d)) for d in arg.dims)
-        part = f"{name} + t * {size}"
-        return f"{name} ? {part} : NULL" if arg.optional else part
-
-    tail = f"{prefix}_run(steps, " + ", ".join(
-        track_array(a.c_name) if a.c_name != PARAMETER_PORT else a.c_name
-        for a in args) + (f", {P_STRIDE})" if unit.parameters else ")")
-    run_call = ([f"const int track_status = {tail};", "if (track_status) {",
-                 "    return track_status;", "}"] if status else [f"{tail};"])
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{_c_parameters(unit, real, ('size_t steps', 'size_t tracks'))})"
-                        if batch else "")
+                        if unit.run_tracks else "")
+    # update-first: run's step 0 calls the update alone (its body, as the step's)
+    loop_update = lowered["update"].without_pattern_checks() if unit.update_first else None
     bodies = [loop_step] + ([two] if two is not None else [])
     functions = body_functions(loop_step, step_body, real)
+    if loop_update is not None:
+        functions += body_functions(loop_update, body_name(prefix, "update"), real)
     if two is not None:
         functions += body_functions(two, body_name(prefix, "pass"), real)
     for lp in lps:
         parts = c_printer.function_parts(lp, prefix, real)
         if lp.name == "step":
             parts["body"] = step_function_body(lp, loop_step, step_body, real)
+        elif lp.name == "update" and loop_update is not None:
+            parts["body"] = step_function_body(lp, loop_update, body_name(prefix, "update"),
+                                               real)
         functions.append(parts)
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
-    bodied = {"step": loop_step} | ({"pass": two} if two is not None else {})  # the loops'
+    bodied = {"step": loop_step} | ({"pass": two} if two is not None else {}) | (
+        {"update": loop_update} if loop_update is not None else {})  # the loops'
     # identical blocks: run carries them in the lanes of one vector (derive.runs.blocks)
     laned = blocks.in_lanes(run, unit.kind, lowered | {"pass": two}) \
-        if real is DOUBLE and not unit.run.window else None
+        if real is DOUBLE and not unit.run.window and not unit.update_first else None
     vector_run, vector_macros, vector_header = [], [], ""
     if laned is not None:
         # (a pass body is called by the scalar run alone where there is no run_tracks: the
@@ -588,13 +602,13 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
-        + (c_loops.tracks_macros(run, bodied, real) if batch else []) + vector_macros,
+        + (c_loops.tracks_macros(run, bodied, real) if unit.run_tracks else []) + vector_macros,
         "functions": functions,
         "run_signature": run_signature,
         "tracks_lines": c_loops.tracks_lines(tracks_signature, run, bodied, prefix, unused,
-                                             tracks_checks, run_call,
+                                             tracks_checks, _run_on_track(unit, status),
                                              ["return 0;"] if status else [], real)
-        if batch else [],
+        if unit.run_tracks else [],
         "run_checks": run_checks,
     }
     if kinds.BUILDERS[unit.kind] is kinds.stepping:

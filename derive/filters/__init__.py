@@ -20,6 +20,7 @@ from ..options import use_filters, validate
 from ..precision import DOUBLE, Precision, PrecisionError, precision
 from ..schedule import scheduled_unit
 from .spec import FilterSpec
+from .unit import checked_measurements, update_first_unit
 
 
 def _family_specs() -> list[FilterSpec]:
@@ -155,6 +156,9 @@ def derive_unit(model, name: str, options=None):
     if typed.precision != DOUBLE.name:
         _check_constants(model, precision(typed.precision))
     unit = f.derive(model, f, typed)
+    if typed.get("start", "predict") == "update" and unit.run_kind != "sensors":
+        unit = update_first_unit(unit, model, f, typed)
+    unit = checked_measurements(unit, model, f, typed)
     if typed.get("latency_schedule"):
         unit = scheduled_unit(unit)
     return unit

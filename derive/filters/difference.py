@@ -25,7 +25,7 @@ x + δ, computed as ``e + D[e]``; nothing is evaluated at x + δ itself):
 
 Each rule is an identity of real numbers (atan2's modulo 2 pi), so D equals
 g(x + δ) - g(x) exactly
-(tests/test_float_ukf.py checks it symbolically and in double against an exact
+(tests/numerics/test_float_ukf.py checks it symbolically and in double against an exact
 evaluation); where a rule applies, its rounding errors are relative to D and to the
 terms D sums, not to g.
 """

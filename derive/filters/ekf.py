@@ -53,10 +53,12 @@ from .sensors import (
     IMPLICIT_SENSOR,
     gate_thresholds,
     kalman_update,
+    renormalised,
     sensor_facts,
     sensor_groups,
     sequential_update,
     unit_norm_fact,
+    unit_norm_noise,
     update_forms,
     uses_sensor_run,
 )
@@ -75,21 +77,29 @@ def ekf_predict_parts(model, lin: Linearisation | None = None):
     Fu = ∂f/∂u at x(k-1/k-1), u(k): the scalar work of the prediction. ``lin``: f and
     [F | Fu] (default :func:`state_jacobian`'s; the error-state EKF gives its own, over
     the tangent space: F is as wide as it is tall)."""
+    own = lin is None
     lin = state_jacobian(model) if lin is None else lin
     n = lin.jacobian.rows
     used = [model.inputs.index(u) for u in model.f_inputs]
     Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used)
 
+    invariant = unit_norm_noise(model) if own else {}
+
     def parts(prog, mapping, x):
         at_x = {**mapping, **state_mapping(model, x)}
+        if invariant:  # where the invariant is used, it holds: the groups renormalised
+            normalised = renormalised(prog, model, list(x))
+            at_x.update(zip(model.state_symbols, normalised))
         Q = sympy.Matrix(model.subs(model.Q)).xreplace(at_x)
         values, FFu = stage_linearisation(prog, lin, at_x, "f")
         F = FFu[:, :n]
         if any(e != 0 for e in Qu):
             Fu = FFu[:, n:]
             FuQu = staging.matmul(prog, Fu, Qu.xreplace(mapping))
-            Q = staging.add(prog, staging.matmul(prog, FuQu, Fu.T, symmetric_result=True), Q,
-                            symmetric_result=True)
+            mapped = sympy.Matrix(staging.matmul(prog, FuQu, Fu.T, symmetric_result=True))
+            for (i, j), entry in invariant.items():
+                mapped[i, j] = mapped[j, i] = prog.let(entry.xreplace(at_x), "qu")
+            Q = staging.add(prog, mapped, Q, symmetric_result=True)
         return values, F, Q
 
     return parts
@@ -200,7 +210,7 @@ def derive_unit(model, spec, options):
                                              **_vector_rows(model, options))
         facts = ([JACOBIAN_FACT, *facts, *_facts(model, iterations)]
                  + sensor_facts(model, groups, thresholds, options.start, forms)
-                 + unit_norm_fact(model) + rows_fact(programs))
+                 + unit_norm_fact(model, invariant=True) + rows_fact(programs))
         return make_sensor_unit(model, spec, programs, options, groups, thresholds,
                                 model.f_inputs, facts)
     programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
@@ -212,7 +222,7 @@ def derive_unit(model, spec, options):
     unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model),
                      carried=carried)
     return _with_facts(unit, [JACOBIAN_FACT, *facts, *_facts(model, iterations),
-                              *unit_norm_fact(model), *rows_fact(programs)])
+                              *unit_norm_fact(model, invariant=True), *rows_fact(programs)])
 
 
 def _facts(model, iterations: int) -> list[str]:
@@ -278,7 +288,8 @@ def loglik_reference(model, data, options):
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
-    options=ExtendedOptions, covariance=True, inputs=True, sensors=True, vector_rows=True,
+    options=ExtendedOptions, covariance=True, inputs=True, sensors=True, start=True,
+    vector_rows=True,
     loglik=loglik_reference,
     extra_programs=("predict", "update1"),
     conditioning=CONDITIONING,  # the KF's: S solved, the update's subtraction

@@ -381,7 +381,7 @@ def reference(model, data, options):
 
 SPECS = (FilterSpec(
     "eskf", "error-state extended Kalman filter", "nonlinear", "sensors", derive_unit,
-    reference, options=EskfOptions, covariance=True, inputs=True, sensors=True,
+    reference, options=EskfOptions, covariance=True, inputs=True, sensors=True, start=True,
     manifolds=True, sensors_reference=reference_run, conditioning=CONDITIONING, listing=105,
     about={"python": "Run the error-state EKF: predict the nominal state, update its error "
                      "in the tangent space and inject it.",

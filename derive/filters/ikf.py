@@ -80,8 +80,14 @@ def derive_unit(model, spec, options):
 
 
 def reference(model, zs, options):
-    """derive.reference.ikf from the model's x0 and P0: (xs, Ps)."""
+    """derive.reference.ikf from the model's x0 and P0 (update-first with start=update):
+    (xs, Ps)."""
     num = model.numeric()
+    if options.get("start", "predict") == "update":
+        return numpy_reference.update_first(
+            lambda x0, P0, rest, _: numpy_reference.ikf(num.F, num.G, num.H, num.Q, num.R,
+                                                        x0, P0, rest),
+            num.H, num.R, num.x0, num.P0, zs)
     return numpy_reference.ikf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
 
 
@@ -98,7 +104,8 @@ def applies(model) -> str | None:
 
 SPECS = (FilterSpec(
     "ikf", "information-form Kalman filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, run_tracks=True, blockwise=True, applies=applies, listing=40,
+    covariance=True, missing=True, run_tracks=True, start=True, blockwise=True,
+    applies=applies, listing=40,
     # H^T R^-1 by an LDL^T solve; P(k+1/k) inverted (its residual reaches P_new scaled by
     # P(k+1/k), as an update's operands), and the information P_new^-1 inverted
     conditioning=(Conditioned(NOISE, "ldl"), Conditioned(UPDATE, "cancel"),

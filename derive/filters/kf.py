@@ -316,13 +316,26 @@ def reference(model, zs, options):
 
 def loglik_reference(model, zs, options):
     """(each step's log-likelihood of the innovation, its scale), from derive.reference.kf
-    (``zs`` as :func:`reference` takes it; a NaN measurement absent)."""
+    (``zs`` as :func:`reference` takes it; a NaN measurement absent; update-first with
+    start=update)."""
     num = model.numeric()
-    inputs = ({"B": num.B, "D": num.D, "us": zs.us} if model.inputs else {})
+    us = zs.us if model.inputs else None
     data = zs.zs if model.inputs else zs
     lls, scales = np.empty(len(data)), np.empty(len(data))
-    numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, data, lls=lls,
-                       ll_scales=scales, **inputs)
+
+    def run(x0, P0, rows, inputs_rows, at=0):
+        inputs = {} if inputs_rows is None else {"B": num.B, "D": num.D, "us": inputs_rows}
+        return numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, x0, P0, rows,
+                                  lls=lls[at:], ll_scales=scales[at:], **inputs)
+
+    if options.get("start", "predict") != "update":
+        run(num.x0, num.P0, data, us)
+        return lls, scales
+    # update-first: step 0's from x0, P0 without a prediction, then the filter from there
+    numpy_reference.update_first(lambda x0, P0, rows, inputs_rows: run(x0, P0, rows,
+                                                                       inputs_rows, 1),
+                                 num.H, num.R, num.x0, num.P0, data, D=num.D if us is not None
+                                 else None, us=us, lls=lls[:1], ll_scales=scales[:1])
     return lls, scales
 
 
@@ -339,7 +352,7 @@ SPECS = (FilterSpec(
     options=KalmanOptions, covariance=True, missing=True, loglik=loglik_reference,
     run_tracks=True,
     inputs=True,
-    sensors=True, blockwise=True, conditioning=CONDITIONING, listing=10,
+    sensors=True, start=True, blockwise=True, conditioning=CONDITIONING, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "
                      "K = P H^T S^-1.",
            "c": "Run the Kalman filter over steps steps; Ps may be NULL."}),)

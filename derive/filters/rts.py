@@ -46,7 +46,10 @@ Loop order:
    predicted x(k+1/k)).
 
 Row 1's prediction (P(1/0)) is written and never read back: P(1/0) is singular for the
-catalog's P0 = 0, so x(0/N) is not part of the run.
+catalog's P0 = 0, so x(0/N) of the x0 before the first prediction is not part of the run.
+With the option start="update" (update-first, pykalman's convention) row 0 of the forward
+pass is x0, P0 updated with z[0] by the program ``update`` (derive.filters.unit), and the
+run returns xs[k] = x(k/N) for k = 0..N-1, xs[0] = x(0/N) as pykalman's smooth does.
 """
 
 from __future__ import annotations
@@ -198,11 +201,13 @@ def derive_unit(model, spec, options: SharedOptions):
 
 def reference(model, zs, options):
     """derive.reference.smoother.rts from the model's x0 and P0 (NaN: absent, with
-    ``missing``): (xs, Ps)."""
+    ``missing``; update-first with start=update): (xs, Ps)."""
     num = model.numeric()
+    start = options.get("start", "predict")
     if model.inputs:  # zs: a run with zs and the inputs us
-        return reference_rts(num, zs.zs, num.x0, num.P0, skip_nan=options.missing, us=zs.us)
-    return reference_rts(num, zs, num.x0, num.P0, skip_nan=options.missing)
+        return reference_rts(num, zs.zs, num.x0, num.P0, skip_nan=options.missing, us=zs.us,
+                             start=start)
+    return reference_rts(num, zs, num.x0, num.P0, skip_nan=options.missing, start=start)
 
 
 def derive_predictions(model, spec, options: SharedOptions):
@@ -232,7 +237,7 @@ SPECS = (FilterSpec(
                 "P(k/k) into xs, Ps and x(k/k-1), P(k/k-1) into x_preds, P_preds (Ps and "
                 "P_preds may be NULL)."}), FilterSpec(
     NAME, TITLE, MODEL_KIND, RUN_KIND, derive_unit, reference, options=OPTIONS,
-    covariance=True, missing=True, inputs=True, listing=95,
+    covariance=True, missing=True, inputs=True, start=True, listing=95,
     # the forward KF's S; the backward gain's LDL^T solve with P(k+1/k)
     conditioning=KF_CONDITIONING + (Conditioned(NEXT_PRIOR, "ldl"),),
     about={"python": "Run the Rauch-Tung-Striebel smoother: a Kalman filter forward, then "

@@ -24,6 +24,7 @@ update, NIS included; gating then selects between the updated and the prior x an
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 
 import numpy as np
 import sympy
@@ -240,15 +241,71 @@ def renormalised(prog: Program, model, x):
     return out
 
 
+@lru_cache(maxsize=16)
+def unit_norm_noise(model) -> dict[tuple[int, int], sympy.Expr]:
+    """The entries (i, j), i <= j, of the mapped input noise ``Fu Qu Fu^T`` that a
+    unit-norm group's invariant ``sum q^2 = 1`` makes cheaper: each entry's polynomial
+    reduced modulo ``sum q^2 - 1`` eliminating one of the group's states (each tried),
+    kept where it has fewer operations than the entry (sympy ``count_ops``). For a
+    quaternion rotating a noise that is the same on three axes, ``C Qa C^T`` is ``Qa``,
+    and the quaternion's own block ``(dt^2 sg^2 / 4) (|q|^2 I - q q^T)`` has ``1 - q_i^2``
+    on its diagonal. Exact only where the group is unit: the EKF's predict renormalises
+    the groups at its start when this is not empty. Cached per model (the generator and
+    the header's facts both ask)."""
+    out: dict[tuple[int, int], sympy.Expr] = {}
+    used = [model.inputs.index(u) for u in model.f_inputs]
+    Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used) if used else None
+    if getattr(model, "unit_norm", ()) and Qu is not None and any(e != 0 for e in Qu):
+        Fu = sympy.Matrix(model.subs(model.Fu_jacobian)).extract(list(range(model.n)), used)
+        rows = [i for i in range(model.n) if any(e != 0 for e in Fu.row(i))]
+        gens = sorted(set().union(*(e.free_symbols for e in Fu), *(e.free_symbols for e in Qu)),
+                      key=str)
+        # polynomials over every symbol (sympy's sparse products, not expand)
+        Fp = {(i, k): sympy.Poly(Fu[i, k], *gens) for i in rows for k in range(len(used))}
+        Qp = {(a, b): sympy.Poly(Qu[a, b], *gens) for a in range(len(used))
+              for b in range(len(used)) if Qu[a, b] != 0}
+        for group in model.unit_norm:
+            q = [model.state_symbols[model.states.index(name)] for name in group]
+            for i in rows:
+                for j in (j for j in rows if j >= i):
+                    entry = sum((Fp[i, a] * Qp[a, b] * Fp[j, b] for a, b in Qp),
+                                sympy.Poly(0, *gens))
+                    index = [gens.index(v) for v in q if v in gens]
+                    squared = [gens[k] for k in index
+                               if any(e[k] >= 2 for e in entry.monoms())]
+                    if entry.is_zero or not squared:  # nothing for the invariant to reduce
+                        continue
+                    best, cost = None, sympy.count_ops(entry.as_expr())
+                    for qk in squared:  # modulo qk^2 + (the others' squares) - 1, by qk
+                        order = [qk] + [v for v in gens if v != qk]
+                        invariant = sympy.Poly(sympy.Add(*[v ** 2 for v in q]) - 1, *order)
+                        rest = sympy.Poly(entry.as_expr(), *order).rem(invariant).as_expr()
+                        if sympy.count_ops(rest) < cost:
+                            best, cost = rest, sympy.count_ops(rest)
+                    if best is not None:
+                        out[i, j] = sympy.factor_terms(best)
+    return out
+
+
 UNIT_NORM_FACT = "unit-norm groups, renormalised at the end of every update: {groups}"
+INVARIANT_FACT = ("invariants used: {invariants} in Q(x, u) = Fu Qu Fu^T, entries {entries} "
+                  "(reduced modulo it where that is cheaper); exact: predict renormalises "
+                  "the groups at its start, so f, F, Fu and Q are taken at unit groups")
 
 
-def unit_norm_fact(model) -> list[str]:
-    """The header line naming the model's unit-norm groups (none without)."""
+def unit_norm_fact(model, invariant: bool = False) -> list[str]:
+    """The header lines naming the model's unit-norm groups and, with ``invariant`` (the
+    EKF), the invariants its predict uses (none without)."""
     groups = getattr(model, "unit_norm", ())
     if not groups:
         return []
-    return [UNIT_NORM_FACT.format(groups="; ".join("(" + ", ".join(g) + ")" for g in groups))]
+    out = [UNIT_NORM_FACT.format(groups="; ".join("(" + ", ".join(g) + ")" for g in groups))]
+    used = unit_norm_noise(model) if invariant else {}
+    if used:
+        out.append(INVARIANT_FACT.format(
+            invariants=", ".join(" + ".join(f"{s}^2" for s in g) + " = 1" for g in groups),
+            entries=", ".join(f"({i}, {j})" for i, j in sorted(used))))
+    return out
 
 
 def sensor_facts(model, groups, thresholds, start: str,
@@ -360,7 +417,11 @@ def reference_functions(model, thresholds):
         Q = numeric_matrix(model, model.Q, [params])
         Qu = numeric_matrix(model, model.Qu, [params])
 
+        first = [[model.states.index(s) for s in group] for group in model.unit_norm] \
+            if unit_norm_noise(model) else []
+
         def predict(x, P, u, p):
+            x = reference.renormalise(x, first)  # as the EKF's predict, using the invariant
             A, G = F(x, u, p), Fu(x, u, p)
             Qx = Q(p) + (G @ Qu(p) @ G.T if names else 0.0)
             return f(x, u, p).ravel(), A @ P @ A.T + Qx

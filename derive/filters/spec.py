@@ -80,9 +80,12 @@ class FilterSpec:
     ``inputs``: it takes a model's per-step inputs u (a model that declares inputs is
     refused by every filter without this flag, never filtered with u ignored).
     ``sensors``: it takes a model with several sensors (``predict`` and one
-    ``update_<sensor>`` per sensor, the run kind ``sensors``) and the options ``gate``,
-    ``gate_sensors`` and ``start`` (a model with sensors is refused by every filter
-    without this flag).
+    ``update_<sensor>`` per sensor, the run kind ``sensors``) and the options ``gate``
+    and ``gate_sensors`` (a model with sensors is refused by every filter without this
+    flag).
+    ``start``: it takes the option ``start`` (update-first): through the run kind
+    ``sensors`` with ``sensors``, else its run calls the program ``update`` (its step of
+    the model without a prediction, derive.filters.unit.update_first_unit) at step 0.
     ``blockwise``: its derivation's work grows with the model's independent blocks, not
     with n as a whole (time-varying steps through derive.filters.blockwise unless P0's
     pattern is dense; steady maps from their non-zero constants): what bounds the model
@@ -123,6 +126,7 @@ class FilterSpec:
     run_tracks: bool = False
     inputs: bool = False
     sensors: bool = False
+    start: bool = False
     blockwise: bool = False
     vector_rows: bool = False
     manifolds: bool = False

@@ -50,6 +50,7 @@ from ..expression_lowering import IfAtMost, IfPresent
 from ..options import SharedOptions
 from ..precision import DOUBLE, precision
 from ..program import Port, Program
+from ..reference.linear import update_first
 from ..reference.ud import ud_kf
 from . import pattern as pat
 from .common import (
@@ -496,13 +497,18 @@ def derive_unit(model, spec: FilterSpec, options: SharedOptions):
 
 
 def reference(model, zs, options):
-    """derive.reference.ud.ud_kf from the model's x0 and P0: (xs, Ps)."""
-    return REFERENCE(model.numeric(), zs)
+    """derive.reference.ud.ud_kf from the model's x0 and P0 (update-first with
+    start=update): (xs, Ps)."""
+    num = model.numeric()
+    if options.get("start", "predict") == "update":
+        return update_first(lambda x0, P0, rest, _: REFERENCE(num, rest, x0, P0),
+                            num.H, num.R, num.x0, num.P0, zs, skip_nan=options.missing)
+    return REFERENCE(num, zs)
 
 
 SPECS = (FilterSpec(
     "udkf", TITLE, MODEL_KIND, "timevarying", derive_unit, reference,
-    options=OPTIONS, covariance=True, missing=True,
+    options=OPTIONS, covariance=True, missing=True, start=True,
     loglik=loglik_reference,  # the KF's: the same likelihood
     extra_programs=("enter", "store"),
     # Bierman's scalar updates divide by the innovation variances (S's LDL^T pivots);

@@ -129,7 +129,12 @@ def vector_update(parts, model, meas, name: str, inputs: list[Port], outputs: li
     4. the columns as the earlier updates left them, ``C_i + sum_{j<i} l_ji C_j``, the
        negated gains ``k_i = C_i (-1/s_i)`` (rows), ``x_new = x - sum_i C_i w_i`` and
        ``P_new[a, b] = P[a, b] + sum_i k_i[a] C_i[b]`` for b >= a (rows over b; the
-       lower triangle mirrored);
+       lower triangle mirrored); where H_i is a unit row e_j, row j of P after update i
+       is ``C_i (1 - C_i[j] / s_i) = C_i R_i / s_i = -R_i k_i`` (s_i = C_i[j] + R_i), so
+       row j is ``-R_i k_i + sum_{i'>i} k_i'[j] C_i'`` (i the last such update): a
+       product for the i + 1 fmas, and no cancellation where R_i is small against
+       P[j, j] (a measurement of -x_j is taken as one of x_j, its innovation negated:
+       C_i is then row j of P, not its negation);
     5. gated (``meas.gate``): ``nis = sum nu~_i^2 / s_i``, x and P kept when it exceeds
        the threshold; then the unit-norm groups renormalised.
 
@@ -148,6 +153,20 @@ def vector_update(parts, model, meas, name: str, inputs: list[Port], outputs: li
     nu = atoms[:m]
     Ha = [atoms[m + i * n:m + (i + 1) * n] for i in range(m)]
     Ra = atoms[m + m * n:]
+
+    # a measurement of -x_j (H_i = -e_j) is fused as the measurement of x_j that it is up
+    # to its sign: C_i is then row j of P itself, not its negation; the signs cancel in
+    # S, the multipliers, the gains and P, and stay with the innovation's terms
+    signs = []
+    for i in range(m):
+        flipped = [-e for e in Ha[i]]
+        negative = _unit_column(Ha[i]) is None and _unit_column(flipped) is not None
+        signs.append(-1 if negative else 1)
+        Ha[i] = flipped if negative else Ha[i]
+    # the row of P that a unit row e_j of H_i measures, after update i, is -R_i k_i
+    # (module docstring, step 4): j -> the last such i
+    measured = {_unit_column(Ha[i]): i for i in range(m)
+                if _unit_column(Ha[i]) is not None}
 
     shell = Program(name, inputs, outputs, doc=doc)
     rows = RowBuilder(shell, prologue, VECTOR_LANES)
@@ -179,8 +198,8 @@ def vector_update(parts, model, meas, name: str, inputs: list[Port], outputs: li
         for j in range(i + 1, m):
             for k in range(j, m):
                 S[j, k] = rows.scalar(S[j, k] + multipliers[i, j] * S[i, k])
-        whitened = rows.scalar(nu[i] + sympy.Add(*[at_step[j, i] * weights[j]
-                                                   for j in range(i)]))
+        whitened = rows.scalar(nu[i] + sympy.Add(*[signs[i] * signs[j] * at_step[j, i]
+                                                   * weights[j] for j in range(i)]))
         weights.append(rows.scalar(whitened * negated[i]))
         nis_terms.append(whitened * weights[i])
     columns: list[list[sympy.Expr]] = []
@@ -189,9 +208,17 @@ def vector_update(parts, model, meas, name: str, inputs: list[Port], outputs: li
                                              for j in range(i)]))
     gains = [rows.row(None, [(1, negated[i], columns[i])]) for i in range(m)]
     x_prior = list(x)
-    x_new = rows.row(x_prior, [(-1, weights[i], columns[i]) for i in range(m)])
-    P_rows = [rows.row(p_row(a), [(1, gains[i][a], columns[i]) for i in range(m)],
-                       read=range(a, n)) for a in range(n)]
+    x_new = rows.row(x_prior, [(-signs[i], weights[i], columns[i]) for i in range(m)])
+    P_rows = []
+    for a in range(n):
+        if a in measured:
+            i = measured[a]
+            P_rows.append(rows.row(None, [(1, rows.scalar(-Ra[i]), gains[i])]
+                                   + [(1, gains[k][a], columns[k]) for k in range(i + 1, m)],
+                                   read=range(a, n)))
+        else:
+            P_rows.append(rows.row(p_row(a), [(1, gains[i][a], columns[i]) for i in range(m)],
+                                   read=range(a, n)))
     P_new = [[P_rows[min(a, b)][max(a, b)] for b in range(n)] for a in range(n)]
     extra = {}
     if meas.gate is not None:

@@ -105,6 +105,27 @@ def lf(F, G, H, Q, R, x0, P0, zs):
     return xs, Ps
 
 
+def update_first(run, H, R, x0, P0, zs, skip_nan: bool = True, D=None, us=None, **first):
+    """A run from x0, P0 whose step 0 updates them with z(0) without a prediction
+    (update-first, pykalman's convention): x(0/0), P(0/0) by :func:`kf` on that step with
+    F = I and no process noise (``D``, ``us``: the measurement's input offset D u(0);
+    ``first``: more of kf's arguments for that step, ``lls``, ``ll_scales``), then
+    ``run(x(0/0), P(0/0), zs[1:], us[1:])`` (a filter started there). Returns (xs, Ps) of
+    all the steps."""
+    x0 = np.asarray(x0, dtype=float)
+    n = x0.shape[0]
+    inputs = {} if us is None else {"B": np.zeros((n, np.shape(us)[1])), "D": D,
+                                     "us": np.asarray(us, dtype=float)[:1]}
+    first_x, first_P = kf(np.eye(n), np.zeros((n, 1)), H, np.zeros((1, 1)), R, x0, P0,
+                          np.asarray(zs, dtype=float)[:1], skip_nan=skip_nan, **inputs,
+                          **first)
+    if len(zs) == 1:
+        return first_x, first_P
+    xs, Ps = run(first_x[0], first_P[0], np.asarray(zs, dtype=float)[1:],
+                 None if us is None else np.asarray(us, dtype=float)[1:])
+    return np.concatenate([first_x, xs]), np.concatenate([first_P, Ps])
+
+
 def jklf(F, G, H, Q, R, x0, P0, zs):
     """Join Kalman-Lainiotis filter: KF and LF run independently, outputs averaged."""
     x_kf, P_kf = kf(F, G, H, Q, R, x0, P0, zs, skip_nan=False)

@@ -23,21 +23,29 @@ from __future__ import annotations
 import numpy as np
 
 from derive.errors import NumericalError
-from derive.reference.linear import kf
+from derive.reference.linear import kf, update_first
 
 
-def rts(model_numeric, zs, x0, P0, skip_nan: bool = False, us=None):
+def rts(model_numeric, zs, x0, P0, skip_nan: bool = False, us=None, start: str = "predict"):
     """Smoothed estimates of ``model_numeric`` (a :class:`derive.model.NumericLinear`) from
     ``zs`` (steps, m), starting at x(0/0) = ``x0``, P(0/0) = ``P0``; ``us`` (steps, n_u):
     the model's inputs, row k with zs[k] (x(k+1/k) = F x(k/k) + B us[k]).
 
     Returns (xs (steps, n), Ps (steps, n, n)) with xs[k-1] = x(k/N).  ``skip_nan``: a NaN
     in z(k) marks that component absent (the forward pass skips it); otherwise NaN is
-    refused.  Raises NumericalError when a P(k+1/k) is singular."""
+    refused.  ``start="update"``: the forward pass updates x0, P0 with z(0) without a
+    prediction (update-first, pykalman's convention), and xs[0] is x(0/N).  Raises
+    NumericalError when a P(k+1/k) is singular."""
     num = model_numeric
     F, W = np.asarray(num.F, float), np.asarray(num.GQGt, float)
-    inputs = {} if us is None else {"B": num.B, "D": num.D, "us": us}
-    xs, Ps = kf(num.F, num.G, num.H, num.Q, num.R, x0, P0, zs, skip_nan=skip_nan, **inputs)
+
+    def forward(x, P, rows, inputs_rows):
+        inputs = {} if inputs_rows is None else {"B": num.B, "D": num.D, "us": inputs_rows}
+        return kf(num.F, num.G, num.H, num.Q, num.R, x, P, rows, skip_nan=skip_nan, **inputs)
+
+    xs, Ps = (update_first(forward, num.H, num.R, x0, P0, zs, skip_nan,
+                           D=None if us is None else num.D, us=us)
+              if start == "update" else forward(x0, P0, zs, us))
     xs, Ps = xs.copy(), Ps.copy()
     Bu = (np.zeros((len(xs), F.shape[0])) if us is None
           else np.asarray(us, float) @ np.asarray(num.B, float).T)
@@ -47,7 +55,8 @@ def rts(model_numeric, zs, x0, P0, skip_nan: bool = False, us=None):
         try:
             gain = np.linalg.solve(P_pred, F @ Ps[k]).T   # P F^T P_pred^-1, P_pred symmetric
         except np.linalg.LinAlgError as exc:
-            raise NumericalError(f"RTS smoother, step {k + 1}: P({k + 2}/{k + 1}) is singular") \
+            j = k + (start != "update")  # the step of row k: k + 1 when predict-first
+            raise NumericalError(f"RTS smoother, step {j}: P({j + 1}/{j}) is singular") \
                 from exc
         xs[k] = xs[k] + gain @ (xs[k + 1] - x_pred)
         Ps[k] = Ps[k] + gain @ (Ps[k + 1] - P_pred) @ gain.T

@@ -109,9 +109,9 @@ def smoother(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
                     + next_p,
                     into=(("x_smooth", Row("xs", n), "x_smooth"),
                           ("P_smooth", Row("Ps", nn), "P_smooth")))
-    loops = (Steps((forward,), note="forward: the Kalman filter; row k of work gets "
-                                    "x(k+1/k+1), P(k+1/k+1) and the\nprediction x(k+1/k), "
-                                    "P(k+1/k)"),
+    loops = (*update_first(unit, Steps((forward,), note="forward: the Kalman filter; row k of "
+                                                       "work gets x(k+1/k+1), P(k+1/k+1) and "
+                                                       "the\nprediction x(k+1/k), P(k+1/k)")),
              last,
              Steps((backward,), down=2, note="backward, rows steps - 2 down to 0: row j of "
                                               "xs, Ps from row j + 1"))
@@ -168,9 +168,22 @@ def stepping(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
         enter = Call("enter", tuple((name, Row(name, prod(sizes[d] for d in dims), "",
                                                side=len(dims) > 1))
                                     for name, dims in unit.run.start))
-    return Run(states, (Steps(tuple(body), note="the step body on local arrays: inlined, it "
-                                                "holds the state in registers"),),
-               returns=tuple(returns), enter=enter)
+    loop = Steps(tuple(body), note="the step body on local arrays: inlined, it holds the "
+                                   "state in registers")
+    return Run(states, update_first(unit, loop), returns=tuple(returns), enter=enter)
+
+
+def update_first(unit: Unit, loop: Steps) -> tuple[Steps, ...]:
+    """``loop``, or with update-first (a step that fuses the prediction and the update) the
+    loop at step 0 alone with the unit's ``update`` called instead of ``step``, then the
+    loop from step 1."""
+    if not unit.update_first:
+        return (loop,)
+    first = tuple(replace(c, program="update") if isinstance(c, Call) and c.program == "step"
+                  else c for c in loop.body)
+    return (replace(loop, body=first, first=True,
+                    note="update-first: step 0 updates x0, P0 with its measurements, without "
+                         "a prediction"), replace(loop, start=1))
 
 
 def two_steps(run: Run, unit: Unit) -> Run:

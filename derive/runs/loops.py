@@ -147,14 +147,18 @@ class Store:
 class Steps:
     """The loop over the steps, k from 0 up (``down``: from ``steps - down`` down to 0),
     ``by`` steps a pass (the last steps, fewer, are left to the next loop, which goes on
-    from where this one stopped: ``rest``); ``note``: what the loop is, for a reader of
-    the generated code."""
+    from where this one stopped: ``rest``); ``first``: step 0 alone (when there is one);
+    ``start``: k from ``start`` up (the loop after a ``first`` one: an update-first run of
+    a step that fuses the prediction and the update calls its update alone at step 0);
+    ``note``: what the loop is, for a reader of the generated code."""
 
     body: tuple[Node, ...]
     down: int = 0
     note: str = ""
     by: int = 1
     rest: bool = False
+    first: bool = False
+    start: int = 0
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,7 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
     RunKind("timevarying", carried=(("x", "x_new"), ("P", "P_new")),
             start=(("x0", ("n",)), ("P0", ("nt", "nt"))),
             stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("nt", "nt"), True)),
-            run_tracks=True, extra_programs=("predict", "update1", "enter", "store")),
+            run_tracks=True, extra_programs=("predict", "update1", "enter", "store", "update")),
     RunKind("steady", carried=(("x", "x_new"),), start=(("x0", ("n",)),),
             stores=(("xs", "x_new", ("n",), False),), run_tracks=True, lookahead=True),
     RunKind("windowed", stores=(("xs", "x_new", ("n",), False),), window=True),
@@ -73,7 +73,8 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
     RunKind("smoother", programs=("backward",), carried=(("x", "x_new"), ("P", "P_new")),
             start=(("x0", ("n",)), ("P0", ("n", "n"))),
             stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), False)),
-            work=(("work", ("x_new", "P_new", "x_pred", "P_pred")),)),
+            work=(("work", ("x_new", "P_new", "x_pred", "P_pred")),),
+            extra_programs=("update",)),
     RunKind("filter_predict", carried=(("x", "x_new"), ("P", "P_new")),
             start=(("x0", ("n",)), ("P0", ("nt", "nt"))),
             stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("nt", "nt"), True),
@@ -95,8 +96,10 @@ KINDS = tuple(RUN_KINDS)
 #: from its arguments (P0 into a factored covariance), and
 #: ``store(<the carried input ports>) -> (<stored outputs no carried port holds>)``: what
 #: run stores from the carried state after each step (P from its factors; C: only when
-#: the array is given).
-EXTRA_PROGRAMS = ("predict", "update1", "enter", "store")
+#: the array is given), and ``update`` (the step's ports): the update alone, which an
+#: update-first run (``Unit.update_first``) calls at step 0 in place of a step that fuses
+#: the prediction and the update.
+EXTRA_PROGRAMS = ("predict", "update1", "enter", "store", "update")
 
 #: The port of the second measurement row of a two-step map (``z`` is row k, this row
 #: k + 1): ``Unit.lookahead`` is ``(x, z, zn) -> x_new``, x(k+2) from x(k).
@@ -175,7 +178,10 @@ class Unit:
     tangent space (x is stored with n numbers, P is nt x nt; :func:`space`).
     ``extra_stores``: per-step outputs run stores besides its kind's (as
     ``RunKind.stores``), each an output of ``step`` after the kind's (the log-likelihood
-    ``ll`` into ``lls``).
+    ``ll`` into ``lls``). ``update_first``: run's step 0 updates x0, P0 with its
+    measurements without a prediction (the sensors run leaves predict out there; a step
+    that fuses the prediction and the update is replaced there by the program
+    ``update``).
     """
 
     model: str
@@ -377,6 +383,9 @@ def _validate(unit: Unit) -> None:
         return
     if "step" not in unit.programs:
         raise ProgramError(f"unit {unit.prefix}: the program 'step' is required")
+    if unit.update_first and "update" not in unit.programs:
+        raise ProgramError(f"unit {unit.prefix}: an update-first run needs the program "
+                           "'update' (the step without its prediction)")
     for name in unit.run.programs:
         if name not in unit.programs:
             raise ProgramError(f"unit {unit.prefix}: run kind {unit.kind!r} needs the program "

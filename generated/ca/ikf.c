@@ -22,11 +22,12 @@
  *     step 4: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 5: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 6: the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 15, div 6, sqrt 0, fma 26, neg 4, cmp 6, calls 0 (flops 91, instructions 75)
+ *     step 7: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 15, div 6, sqrt 0, fma 26, neg 4, cmp 7, calls 0 (flops 91, instructions 76)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",7,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"7":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -178,6 +179,9 @@ DERIVE_INLINE int ca_ikf_step_body(const double *restrict x, const double *restr
     const double t58 = DERIVE_FNMA(t51, t52, x[2 * s]);
     const double t59 = -t44;
     const double t60 = -t45;
+    if (!((z[0] == z[0])) && !status) {
+        status = 7; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t56;
     x_new[1 * s] = t57;
     x_new[2 * s] = t58;

@@ -22,11 +22,12 @@
  *     step 4: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 5: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 6: the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 15, div 6, sqrt 0, fma 26, neg 4, cmp 6, calls 0 (flops 91, instructions 75)
+ *     step 7: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 15, div 6, sqrt 0, fma 26, neg 4, cmp 7, calls 0 (flops 91, instructions 76)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",7,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"7":["z",["z"]]}}
  */
 #ifndef DERIVE_ca_ikf_H
 #define DERIVE_ca_ikf_H
@@ -61,7 +62,8 @@ enum ca_ikf_status {
     ca_ikf_STATUS_STEP_PREDICTED_P_NOT_POSITIVE_DEFINITE_3 = 3,
     ca_ikf_STATUS_STEP_INFORMATION_MATRIX_NOT_POSITIVE_DEFINITE_4 = 4,
     ca_ikf_STATUS_STEP_INFORMATION_MATRIX_NOT_POSITIVE_DEFINITE_5 = 5,
-    ca_ikf_STATUS_STEP_INFORMATION_MATRIX_NOT_POSITIVE_DEFINITE_6 = 6
+    ca_ikf_STATUS_STEP_INFORMATION_MATRIX_NOT_POSITIVE_DEFINITE_6 = 6,
+    ca_ikf_STATUS_STEP_MEASUREMENT_NAN_7 = 7
 };
 
 #ifdef __cplusplus

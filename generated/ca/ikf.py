@@ -20,7 +20,8 @@ status (C return value; Python raises NumericalError): 0 success
     step 4: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 5: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 6: the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 33, sub 11, mul 41, div 6, sqrt 0, fma 0, neg 2, cmp 6, calls 0 (flops 91, instructions 99)
+    step 7: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+operations per call of step (Python): add 33, sub 11, mul 41, div 6, sqrt 0, fma 0, neg 2, cmp 7, calls 0 (flops 91, instructions 100)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -60,6 +61,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -183,6 +205,7 @@ def _step(x, P, z):
     t58 = x[2] - t55
     t59 = -t44
     t60 = -t45
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t56, t57, t58]
     P_new = [t46, t47, t59, t47, t48, t60, t59, t60, t41]
     return x_new, P_new
@@ -280,6 +303,8 @@ def run(zs, x0, P0):
             x_2 = x_2 - 10.0*t44*t52
             P_2 = -t44
             P_5 = -t45
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 72}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
         table = np.frombuffer(rows).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
@@ -288,9 +313,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
-        for i in range(9):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+            for i in range(9):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 3, 3) + track)

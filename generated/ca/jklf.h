@@ -17,11 +17,12 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 41, sub 1, mul 62, div 4, sqrt 0, fma 98, neg 2, cmp 1, calls 0 (flops 304, instructions 209)
+ *     step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 41, sub 1, mul 62, div 4, sqrt 0, fma 98, neg 2, cmp 2, calls 0 (flops 304, instructions 210)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_jklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_jklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"2":["z",["z"]]}}
  */
 #ifndef DERIVE_ca_jklf_H
 #define DERIVE_ca_jklf_H
@@ -51,7 +52,8 @@
 /* the statuses listed above, by name (the functions return them as int) */
 enum ca_jklf_status {
     ca_jklf_STATUS_OK = 0,
-    ca_jklf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1
+    ca_jklf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
+    ca_jklf_STATUS_STEP_MEASUREMENT_NAN_2 = 2
 };
 
 #ifdef __cplusplus

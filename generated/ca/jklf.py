@@ -15,7 +15,8 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 100, sub 40, mul 160, div 4, sqrt 0, fma 0, neg 1, cmp 1, calls 0 (flops 304, instructions 306)
+    step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+operations per call of step (Python): add 100, sub 40, mul 160, div 4, sqrt 0, fma 0, neg 1, cmp 2, calls 0 (flops 304, instructions 307)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -55,6 +56,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -249,6 +271,7 @@ def _step(x, P, z):
     t134 = 0.5*t128
     t135 = 0.5*t129
     t136 = 0.5*t130
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t122, t123, t124]
     P_new = [t131, t132, t133, t132, t134, t135, t133, t135, t136]
     return x_new, P_new
@@ -357,6 +380,8 @@ def run(zs, x0, P0):
             t134 = 0.5*(0.0033177860696517415 + (0.9875621890547264*t102 - 0.012437810945273632*t101 + 0.9937810945273632*t103) + (t13 - t11*t19))
             t135 = 0.5*(0.004979270315091211 + (0.9917081260364843*t103 - 0.01658374792703151*t101 - 0.01658374792703151*t102) + (t14 - t12*t19))
             P_8 = 0.5*(0.009972360420121614 + (0.9917081260364843*(P_2*t77 - P_5*t78 + P_8*t79) - 0.01658374792703151*(P_0*t77 - P_1*t78 + P_2*t79) - 0.01658374792703151*(P_1*t77 - P_4*t78 + P_5*t79)) + (t15 - t12*t20))
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 72}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, t131, t132, t133, t134, t135, P_8))
             P_0 = t131
             P_1 = t132
@@ -370,9 +395,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
-        for i in range(9):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+            for i in range(9):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 3, 3) + track)

@@ -10,17 +10,19 @@
  * m: 1 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void ca_jssklf_step(x[3], z[1], x_new[3] out)
- *     void ca_jssklf_run(steps, z[steps*1], x0[3], xs[steps*3] out)
- *     void ca_jssklf_run_tracks(steps, tracks, z[steps*1], x0[3], xs[steps*3] out)
+ *     int ca_jssklf_step(x[3], z[1], x_new[3] out)
+ *     int ca_jssklf_run(steps, z[steps*1], x0[3], xs[steps*3] out)
+ *     int ca_jssklf_run_tracks(steps, tracks, z[steps*1], x0[3], xs[steps*3] out)
  *     many tracks: ca_jssklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 21, instructions 12)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter jssklf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 1, calls 0 (flops 21, instructions 13)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A = [[ 0.2559986051046037 ,  0.25599860510460365,  0.12799930255230185], [-0.4879342145597783 ,  0.5120657854402215 ,  0.7560328927201108 ], [-0.15999956409459487, -0.15999956409459484,  0.9200002179527026 ]]
  * B = [[0.7440013948953963 ], [0.48793421455977826], [0.15999956409459481]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 48, instructions 27)
- * derive-interface: {"functions":[["ca_jssklf_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_jssklf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_jssklf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 2, calls 0 (flops 48, instructions 29)
+ * derive-interface: {"functions":[["ca_jssklf_step","step",true,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_jssklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_jssklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter jssklf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -93,33 +95,43 @@
 #endif
 #endif
 
-DERIVE_INLINE void ca_jssklf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int ca_jssklf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.12799930255230185, x[2 * s], DERIVE_FMA(0.25599860510460365, x[1 * s], DERIVE_FMA(0.2559986051046037, x[0], 0.7440013948953963*z[0])));
     const double t1 = DERIVE_FMA(0.7560328927201108, x[2 * s], DERIVE_FMA(0.5120657854402215, x[1 * s], DERIVE_FMA((-0.4879342145597783), x[0], 0.48793421455977826*z[0])));
     const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.15999956409459487), x[0], 0.15999956409459481*z[0])));
+    if (!((z[0] == z[0])) && !status) {
+        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
+    return status;
 }
 
-DERIVE_INLINE void ca_jssklf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int ca_jssklf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.34407039510320986, x[2 * s], DERIVE_FMA(0.17614357999721234, x[1 * s], DERIVE_FMA((-0.07985502510739127), x[0], DERIVE_FMA(0.7440013948953963, zn[0], 0.33585363021199494*z[0]))));
     const double t1 = DERIVE_FMA(1.0202337639562236, x[2 * s], DERIVE_FMA(0.01633595703200404, x[1 * s], DERIVE_FMA((-0.49572982840821744), x[0], DERIVE_FMA(0.48793421455977826, zn[0], 0.007795613848439064*z[0]))));
     const double t2 = DERIVE_FMA(0.7049556351438465, x[2 * s], DERIVE_FMA((-0.27008960152311734), x[1 * s], DERIVE_FMA((-0.11009003742852257), x[0], DERIVE_FMA(0.15999956409459481, zn[0], (-0.049909526666072346)*z[0]))));
+    if (!((zn[0] == zn[0])) && !status) {
+        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
+    return status;
 }
 
-void ca_jssklf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int ca_jssklf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    ca_jssklf_step_body(x, z, x_new, 1);
+    return ca_jssklf_step_body(x, z, x_new, 1);
 }
 
 /* Run the joint steady-state Kalman-Lainiotis filter over steps steps. */
-void ca_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
+int ca_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
     double x[3];
     double x_new[3];
@@ -133,8 +145,14 @@ void ca_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 1;
         const double *restrict znk = z + (k + 1) * 1;
-        ca_jssklf_step_body(x, zk, x_mid, 1);
-        ca_jssklf_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = ca_jssklf_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = ca_jssklf_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 3 + 0] = x_mid[0];
         xs[k * 3 + 1] = x_mid[1];
         xs[k * 3 + 2] = x_mid[2];
@@ -145,11 +163,15 @@ void ca_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        ca_jssklf_step_body(x, zk, x_new, 1);
+        const int step_status = ca_jssklf_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
     }
+    return 0;
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
@@ -159,7 +181,7 @@ void ca_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
  * over the lanes in one loop the compiler vectorises, each lane the operations of its own
  * run in the same order; the last tracks, fewer than a block, by run itself.
  * A non-zero status stops the whole run. */
-void ca_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
+int ca_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
 {
     size_t t = 0;
     size_t k, i, j;
@@ -178,6 +200,7 @@ void ca_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const do
         double z_b[1 * DERIVE_LANES];
         double x_mid_b[3 * DERIVE_LANES];
         double zn_b[1 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 3; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
@@ -208,8 +231,22 @@ void ca_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const do
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                ca_jssklf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
-                ca_jssklf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                const int step_status = ca_jssklf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
+                const int pass_status = ca_jssklf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = step_status ? step_status : pass_status;
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 3; ++i) {
@@ -247,7 +284,20 @@ void ca_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const do
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                ca_jssklf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = ca_jssklf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 3; ++i) {
@@ -263,6 +313,10 @@ void ca_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const do
     }
     /* the last tracks, fewer than a block: run on each */
     for (; t < tracks; ++t) {
-        ca_jssklf_run(steps, z + t * steps * 1, x0 + t * 3, xs + t * steps * 3);
+        const int track_status = ca_jssklf_run(steps, z + t * steps * 1, x0 + t * 3, xs + t * steps * 3);
+        if (track_status) {
+            return track_status;
+        }
     }
+    return 0;
 }

@@ -15,11 +15,12 @@
  * symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 3, div 1, sqrt 0, fma 14, neg 0, cmp 1, calls 0 (flops 50, instructions 37)
+ *     step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 3, div 1, sqrt 0, fma 14, neg 0, cmp 2, calls 0 (flops 50, instructions 38)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_kfp_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["ca_kfp_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false],["x_preds",["steps",3],true,false,false],["P_preds",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_kfp_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["ca_kfp_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false],["x_preds",["steps",3],true,false,false],["P_preds",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"2":["z",["z"]]}}
  */
 #ifndef DERIVE_ca_kfp_H
 #define DERIVE_ca_kfp_H
@@ -49,7 +50,8 @@
 /* the statuses listed above, by name (the functions return them as int) */
 enum ca_kfp_status {
     ca_kfp_STATUS_OK = 0,
-    ca_kfp_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1
+    ca_kfp_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
+    ca_kfp_STATUS_STEP_MEASUREMENT_NAN_2 = 2
 };
 
 #ifdef __cplusplus

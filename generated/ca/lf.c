@@ -10,16 +10,18 @@
  * m: 1 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void ca_lf_step(x[3], P[3*3], z[1], x_new[3] out, P_new[3*3] out)
- *     void ca_lf_run(steps, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
- *     void ca_lf_run_tracks(steps, tracks, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     int ca_lf_step(x[3], P[3*3], z[1], x_new[3] out, P_new[3*3] out)
+ *     int ca_lf_run(steps, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     int ca_lf_run_tracks(steps, tracks, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: ca_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 0, mul 50, div 3, sqrt 0, fma 84, neg 2, cmp 0, calls 0 (flops 236, instructions 154)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 0, mul 50, div 3, sqrt 0, fma 84, neg 2, cmp 1, calls 0 (flops 236, instructions 155)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_lf_step","step",false,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_lf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["ca_lf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_lf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_lf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"1":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -92,8 +94,9 @@
 #endif
 #endif
 
-DERIVE_INLINE void ca_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+DERIVE_INLINE int ca_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
+    int status = 0;
     const double t0 = 9.950248756218905*P[1 * s];
     const double t1 = 4.975124378109452*P[2 * s];
     const double t2 = DERIVE_FMA(9.950248756218905, P[0], t0 + t1);
@@ -170,6 +173,9 @@ DERIVE_INLINE void ca_lf_step_body(const double *restrict x, const double *restr
     const double t76 = 0.0033177860696517415 + t70;
     const double t77 = 0.004979270315091211 + t71;
     const double t78 = 0.009972360420121614 + t72;
+    if (!((z[0] == z[0])) && !status) {
+        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t55;
     x_new[1 * s] = t56;
     x_new[2 * s] = t57;
@@ -182,15 +188,16 @@ DERIVE_INLINE void ca_lf_step_body(const double *restrict x, const double *restr
     P_new[6 * s] = t75;
     P_new[7 * s] = t77;
     P_new[8 * s] = t78;
+    return status;
 }
 
-void ca_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+int ca_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
-    ca_lf_step_body(x, P, z, x_new, P_new, 1);
+    return ca_lf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
-void ca_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int ca_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     double x[3];
     double P[9];
@@ -212,7 +219,10 @@ void ca_lf_run(size_t steps, const double *z, const double *x0, const double *P0
     /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        ca_lf_step_body(x, P, zk, x_new, P_new, 1);
+        const int step_status = ca_lf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
@@ -237,6 +247,7 @@ void ca_lf_run(size_t steps, const double *z, const double *x0, const double *P0
             Ps[k * 9 + 8] = P_new[8];
         }
     }
+    return 0;
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
@@ -246,7 +257,7 @@ void ca_lf_run(size_t steps, const double *z, const double *x0, const double *P0
  * over the lanes in one loop the compiler vectorises, each lane the operations of its own
  * run in the same order; the last tracks, fewer than a block, by run itself.
  * A non-zero status stops the whole run. */
-void ca_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int ca_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
     size_t k, i, j;
@@ -267,6 +278,7 @@ void ca_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double
         double *P_b = P_b_pair[0];
         double *P_new_b = P_b_pair[1];
         double z_b[1 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 3; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
@@ -302,7 +314,20 @@ void ca_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                ca_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+                status_b[j] = ca_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 3; ++i) {
@@ -328,6 +353,10 @@ void ca_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double
     }
     /* the last tracks, fewer than a block: run on each */
     for (; t < tracks; ++t) {
-        ca_lf_run(steps, z + t * steps * 1, x0 + t * 3, P0 + t * 3 * 3, xs + t * steps * 3, Ps ? Ps + t * steps * 3 * 3 : NULL);
+        const int track_status = ca_lf_run(steps, z + t * steps * 1, x0 + t * 3, P0 + t * 3 * 3, xs + t * steps * 3, Ps ? Ps + t * steps * 3 * 3 : NULL);
+        if (track_status) {
+            return track_status;
+        }
     }
+    return 0;
 }

@@ -13,7 +13,9 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     step(x[3], P[3*3], z[1]) -> (x_new[3], P_new[3, 3])
     run(zs[steps, 1], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
-operations per call of step (Python): add 66, sub 33, mul 134, div 3, sqrt 0, fma 0, neg 1, cmp 0, calls 0 (flops 236, instructions 237)
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+operations per call of step (Python): add 66, sub 33, mul 134, div 3, sqrt 0, fma 0, neg 1, cmp 1, calls 0 (flops 236, instructions 238)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -37,6 +39,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -82,6 +112,7 @@ def step(x, P, z):
     Returns:
         x_new [3]: x(k+1/k+1)
         P_new [(3, 3) array, symmetric, then any track axes]: P(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     """
     x_new, P_new = _step(x, P, z)
     return x_new, _matrix(P_new, (3, 3))
@@ -171,6 +202,7 @@ def _step(x, P, z):
     t76 = 0.0033177860696517415 + t70
     t77 = 0.004979270315091211 + t71
     t78 = 0.009972360420121614 + t72
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t55, t56, t57]
     P_new = [t73, t74, t75, t74, t76, t77, t75, t77, t78]
     return x_new, P_new
@@ -260,6 +292,8 @@ def run(zs, x0, P0):
             t76 = 0.0033177860696517415 + (0.9875621890547264*t62 - 0.012437810945273632*t61 + 0.9937810945273632*t63)
             t77 = 0.004979270315091211 + (0.9917081260364843*t63 - 0.01658374792703151*t61 - 0.01658374792703151*t62)
             P_8 = 0.009972360420121614 + (0.9917081260364843*(P_2*t37 - P_5*t38 + P_8*t39) - 0.01658374792703151*(P_0*t37 - P_1*t38 + P_2*t39) - 0.01658374792703151*(P_1*t37 - P_4*t38 + P_5*t39))
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 72}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, t73, t74, t75, t76, t77, P_8))
             P_0 = t73
             P_1 = t74
@@ -273,9 +307,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
-        for i in range(9):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+            for i in range(9):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 3, 3) + track)

@@ -11,17 +11,19 @@
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
  *     void ca_pred_init(x0[3], x_new[3] out)
- *     void ca_pred_step(x[3], z[1], x_new[3] out)
- *     void ca_pred_run(steps, z[steps*1], x0[3], xs[steps*3] out)
+ *     int ca_pred_step(x[3], z[1], x_new[3] out)
+ *     int ca_pred_run(steps, z[steps*1], x0[3], xs[steps*3] out)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter pred takes no absent measurements)
  * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 0, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 4, instructions 3)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 7, neg 0, cmp 0, calls 0 (flops 15, instructions 8)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 7, neg 0, cmp 1, calls 0 (flops 15, instructions 9)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A_N = [[-0.31193539150247196,  1.                 ,  0.5                ], [-0.6479337786543731 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
  * B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 3, div 0, sqrt 0, fma 19, neg 0, cmp 0, calls 0 (flops 42, instructions 23)
- * derive-interface: {"functions":[["ca_pred_init","init",false,false,[["x0",[3],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 3, div 0, sqrt 0, fma 19, neg 0, cmp 2, calls 0 (flops 42, instructions 25)
+ * derive-interface: {"functions":[["ca_pred_init","init",false,false,[["x0",[3],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_step","step",true,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter pred takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -58,24 +60,34 @@
 #endif
 #endif
 
-DERIVE_INLINE void ca_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int ca_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.5, x[2 * s], DERIVE_FMA((-0.31193539150247196), x[0], DERIVE_FMA(1.311935391502472, z[0], x[1 * s])));
     const double t1 = DERIVE_FMA((-0.6479337786543731), x[0], DERIVE_FMA(0.6479337786543731, z[0], x[1 * s] + x[2 * s]));
     const double t2 = DERIVE_FMA((-0.15999956409459484), x[0], DERIVE_FMA(0.15999956409459484, z[0], x[2 * s]));
+    if (!((z[0] == z[0])) && !status) {
+        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
+    return status;
 }
 
-DERIVE_INLINE void ca_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int ca_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(1.344032304248764, x[2 * s], DERIVE_FMA(0.688064608497528, x[1 * s], DERIVE_FMA((-0.63062987222987), x[0], DERIVE_FMA(1.311935391502472, zn[0], 0.31869448072739803*z[0]))));
     const double t1 = DERIVE_FMA(1.6760331106728135, x[2 * s], DERIVE_FMA(0.35206622134562693, x[1 * s], DERIVE_FMA((-0.6058198658367401), x[0], DERIVE_FMA(0.6479337786543731, zn[0], (-0.0421139128176331)*z[0]))));
     const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.11009003742852254), x[0], DERIVE_FMA(0.15999956409459484, zn[0], (-0.04990952666607232)*z[0]))));
+    if (!((zn[0] == zn[0])) && !status) {
+        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
+    return status;
 }
 
 void ca_pred_init(const double *restrict x0, double *restrict x_new)
@@ -87,13 +99,13 @@ void ca_pred_init(const double *restrict x0, double *restrict x_new)
     x_new[2] = x0[2];
 }
 
-void ca_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int ca_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    ca_pred_step_body(x, z, x_new, 1);
+    return ca_pred_step_body(x, z, x_new, 1);
 }
 
 /* Run the predictor from x(N/0) = init(x0): row k of xs is the prediction after z[k]. */
-void ca_pred_run(size_t steps, const double *z, const double *x0, double *xs)
+int ca_pred_run(size_t steps, const double *z, const double *x0, double *xs)
 {
     double x_init[3];
     double x[3];
@@ -109,8 +121,14 @@ void ca_pred_run(size_t steps, const double *z, const double *x0, double *xs)
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 1;
         const double *restrict znk = z + (k + 1) * 1;
-        ca_pred_step_body(x, zk, x_mid, 1);
-        ca_pred_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = ca_pred_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = ca_pred_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 3 + 0] = x_mid[0];
         xs[k * 3 + 1] = x_mid[1];
         xs[k * 3 + 2] = x_mid[2];
@@ -121,9 +139,13 @@ void ca_pred_run(size_t steps, const double *z, const double *x0, double *xs)
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        ca_pred_step_body(x, zk, x_new, 1);
+        const int step_status = ca_pred_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
     }
+    return 0;
 }

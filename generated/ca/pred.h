@@ -11,17 +11,19 @@
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
  *     void ca_pred_init(x0[3], x_new[3] out)
- *     void ca_pred_step(x[3], z[1], x_new[3] out)
- *     void ca_pred_run(steps, z[steps*1], x0[3], xs[steps*3] out)
+ *     int ca_pred_step(x[3], z[1], x_new[3] out)
+ *     int ca_pred_run(steps, z[steps*1], x0[3], xs[steps*3] out)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter pred takes no absent measurements)
  * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 0, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 4, instructions 3)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 7, neg 0, cmp 0, calls 0 (flops 15, instructions 8)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 7, neg 0, cmp 1, calls 0 (flops 15, instructions 9)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A_N = [[-0.31193539150247196,  1.                 ,  0.5                ], [-0.6479337786543731 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
  * B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 3, div 0, sqrt 0, fma 19, neg 0, cmp 0, calls 0 (flops 42, instructions 23)
- * derive-interface: {"functions":[["ca_pred_init","init",false,false,[["x0",[3],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 3, div 0, sqrt 0, fma 19, neg 0, cmp 2, calls 0 (flops 42, instructions 25)
+ * derive-interface: {"functions":[["ca_pred_init","init",false,false,[["x0",[3],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_step","step",true,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter pred takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #ifndef DERIVE_ca_pred_H
 #define DERIVE_ca_pred_H
@@ -48,13 +50,19 @@
 #define ca_pred_M 1
 #define ca_pred_NP 0
 
+/* the statuses listed above, by name (the functions return them as int) */
+enum ca_pred_status {
+    ca_pred_STATUS_OK = 0,
+    ca_pred_STATUS_STEP_MEASUREMENT_NAN_1 = 1
+};
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
 void ca_pred_init(const double *DERIVE_RESTRICT x0, double *DERIVE_RESTRICT x_new);
-void ca_pred_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
-void ca_pred_run(size_t steps, const double *z, const double *x0, double *xs);
+int ca_pred_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
+int ca_pred_run(size_t steps, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

@@ -13,8 +13,10 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     init(x0[3]) -> (x_new[3])
     step(x[3], z[1]) -> (x_new[3])
     run(zs[steps, 1], x0[3]) -> (xs[steps, 3])
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (filter pred takes no absent measurements)
 operations per call of init (Python): add 3, sub 0, mul 1, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
-operations per call of step (Python): add 5, sub 3, mul 7, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 15, instructions 15)
+operations per call of step (Python): add 5, sub 3, mul 7, div 0, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 15, instructions 16)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 A_N = [[-0.31193539150247196,  1.                 ,  0.5                ], [-0.6479337786543731 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
 B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
@@ -39,6 +41,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -88,10 +118,12 @@ def step(x, z):
         z [1]: z(k+1)
     Returns:
         x_new [3]: x(k+1/k)
+    Raises NumericalError when a runtime check fails.
     """
     t0 = x[1] - 0.31193539150247196*x[0] + 0.5*x[2] + 1.311935391502472*z[0]
     t1 = x[1] - 0.6479337786543731*x[0] + x[2] + 0.6479337786543731*z[0]
     t2 = x[2] - 0.15999956409459484*x[0] + 0.15999956409459484*z[0]
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (filter pred takes no absent measurements)')
     x_new = [t0, t1, t2]
     return x_new
 
@@ -124,6 +156,8 @@ def run(zs, x0):
             t0 = x_1 - 0.31193539150247196*x_0 + 0.5*x_2 + 1.311935391502472*z_0
             x_1 = x_1 - 0.6479337786543731*x_0 + x_2 + 0.6479337786543731*z_0
             x_2 = x_2 - 0.15999956409459484*x_0 + 0.15999956409459484*z_0
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 24}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (filter pred takes no absent measurements)'))
             keep(pack(t0, x_1, x_2))
             x_0 = t0
         table = np.frombuffer(rows).reshape(-1, 3)
@@ -131,7 +165,10 @@ def run(zs, x0):
     xs = np.empty((steps, 3) + track)
     x = init(x0)
     for k in range(steps):
-        x = step(x, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
+        try:
+            x = step(x, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs

@@ -17,16 +17,17 @@
  * symmetric in backward: P, P_pred, P_smooth_next, P_smooth (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 2: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 3: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     backward 4: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 3, div 1, sqrt 0, fma 14, neg 0, cmp 1, calls 0 (flops 50, instructions 37)
+ *     step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     backward 3: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 4: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     backward 5: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 3, div 1, sqrt 0, fma 14, neg 0, cmp 2, calls 0 (flops 50, instructions 38)
  * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 9, mul 30, div 3, sqrt 0, fma 61, neg 0, cmp 3, calls 0 (flops 179, instructions 121)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * work: steps * 24 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["ca_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["ca_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["ca_rts_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",2,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",3,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",4,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["ca_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["ca_rts_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["backward",3,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",4,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",5,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]]],"present":{"2":["z",["z"]]}}
  */
 #ifndef DERIVE_ca_rts_H
 #define DERIVE_ca_rts_H
@@ -57,9 +58,10 @@
 enum ca_rts_status {
     ca_rts_STATUS_OK = 0,
     ca_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
-    ca_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_2 = 2,
+    ca_rts_STATUS_STEP_MEASUREMENT_NAN_2 = 2,
     ca_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_3 = 3,
-    ca_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_4 = 4
+    ca_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_4 = 4,
+    ca_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_5 = 5
 };
 
 #ifdef __cplusplus

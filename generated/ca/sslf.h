@@ -10,17 +10,19 @@
  * m: 1 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void ca_sslf_step(x[3], z[1], x_new[3] out)
- *     void ca_sslf_run(steps, z[steps*1], x0[3], xs[steps*3] out)
- *     void ca_sslf_run_tracks(steps, tracks, z[steps*1], x0[3], xs[steps*3] out)
+ *     int ca_sslf_step(x[3], z[1], x_new[3] out)
+ *     int ca_sslf_run(steps, z[steps*1], x0[3], xs[steps*3] out)
+ *     int ca_sslf_run_tracks(steps, tracks, z[steps*1], x0[3], xs[steps*3] out)
  *     many tracks: ca_sslf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 21, instructions 12)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter sslf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 1, calls 0 (flops 21, instructions 13)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A = [[ 0.25599860510460365,  0.2559986051046036 ,  0.12799930255230188], [-0.48793421455977837,  0.5120657854402214 ,  0.7560328927201108 ], [-0.1599995640945949 , -0.15999956409459484,  0.9200002179527026 ]]
  * B = [[0.7440013948953963 ], [0.4879342145597782 ], [0.15999956409459481]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 48, instructions 27)
- * derive-interface: {"functions":[["ca_sslf_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_sslf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_sslf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 2, calls 0 (flops 48, instructions 29)
+ * derive-interface: {"functions":[["ca_sslf_step","step",true,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_sslf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_sslf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sslf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #ifndef DERIVE_ca_sslf_H
 #define DERIVE_ca_sslf_H
@@ -47,13 +49,19 @@
 #define ca_sslf_M 1
 #define ca_sslf_NP 0
 
+/* the statuses listed above, by name (the functions return them as int) */
+enum ca_sslf_status {
+    ca_sslf_STATUS_OK = 0,
+    ca_sslf_STATUS_STEP_MEASUREMENT_NAN_1 = 1
+};
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void ca_sslf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
-void ca_sslf_run(size_t steps, const double *z, const double *x0, double *xs);
-void ca_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
+int ca_sslf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
+int ca_sslf_run(size_t steps, const double *z, const double *x0, double *xs);
+int ca_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

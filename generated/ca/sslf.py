@@ -12,7 +12,9 @@ parameters: none
 interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(x[3], z[1]) -> (x_new[3])
     run(zs[steps, 1], x0[3]) -> (xs[steps, 3])
-operations per call of step (Python): add 6, sub 3, mul 12, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 21, instructions 21)
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (filter sslf takes no absent measurements)
+operations per call of step (Python): add 6, sub 3, mul 12, div 0, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 21, instructions 22)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 A = [[ 0.25599860510460365,  0.2559986051046036 ,  0.12799930255230188], [-0.48793421455977837,  0.5120657854402214 ,  0.7560328927201108 ], [-0.1599995640945949 , -0.15999956409459484,  0.9200002179527026 ]]
 B = [[0.7440013948953963 ], [0.4879342145597782 ], [0.15999956409459481]]
@@ -36,6 +38,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -71,10 +101,12 @@ def step(x, z):
         z [1]: z(k+1)
     Returns:
         x_new [3]: x(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     """
     t0 = 0.25599860510460365*x[0] + 0.2559986051046036*x[1] + 0.12799930255230188*x[2] + 0.7440013948953963*z[0]
     t1 = 0.5120657854402214*x[1] - 0.48793421455977837*x[0] + 0.7560328927201108*x[2] + 0.4879342145597782*z[0]
     t2 = 0.9200002179527026*x[2] - 0.1599995640945949*x[0] - 0.15999956409459484*x[1] + 0.15999956409459481*z[0]
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (filter sslf takes no absent measurements)')
     x_new = [t0, t1, t2]
     return x_new
 
@@ -106,6 +138,8 @@ def run(zs, x0):
             t0 = 0.25599860510460365*x_0 + 0.2559986051046036*x_1 + 0.12799930255230188*x_2 + 0.7440013948953963*z_0
             t1 = 0.5120657854402214*x_1 - 0.48793421455977837*x_0 + 0.7560328927201108*x_2 + 0.4879342145597782*z_0
             x_2 = 0.9200002179527026*x_2 - 0.1599995640945949*x_0 - 0.15999956409459484*x_1 + 0.15999956409459481*z_0
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 24}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (filter sslf takes no absent measurements)'))
             keep(pack(t0, t1, x_2))
             x_0 = t0
             x_1 = t1
@@ -114,7 +148,10 @@ def run(zs, x0):
     xs = np.empty((steps, 3) + track)
     x = x0
     for k in range(steps):
-        x = step(x, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
+        try:
+            x = step(x, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs

@@ -23,17 +23,18 @@
  *     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
  *     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
- *     enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 4, mul 24, div 6, sqrt 0, fma 30, neg 1, cmp 8, select 2, calls 0 (flops 109, instructions 90)
+ *     step 7: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 4, mul 24, div 6, sqrt 0, fma 30, neg 1, cmp 9, select 2, calls 0 (flops 109, instructions 91)
  * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 3, sub 0, mul 0, div 3, sqrt 0, fma 4, neg 0, cmp 5, select 2, calls 0 (flops 14, instructions 17)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 11, instructions 7)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["ca_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["ca_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["ca_udkf_store","store",false,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["ca_udkf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["enter",7,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",8,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
+ * derive-interface: {"functions":[["ca_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["ca_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["ca_udkf_store","store",false,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["ca_udkf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",7,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["enter",8,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",10,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]],"present":{"7":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -159,6 +160,9 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     const double t65 = DERIVE_FMA(t60, t64, t37);
     const double t66 = DERIVE_FMA(t62, t64, t38);
     const double t67 = DERIVE_FMA(t40, t64, x[2 * s]);
+    if (!((z[0] == z[0])) && !status) {
+        status = 7; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t65;
     x_new[1 * s] = t66;
     x_new[2 * s] = t67;
@@ -186,7 +190,7 @@ int ca_udkf_enter(const double *restrict x0, const double *restrict P0, double *
 {
     const double t0 = 2.2250738585072014e-308 + P0[8];
     if (!(t0 > 0.0)) {
-        return 7; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 8; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
     const double t1 = ((P0[8] <= 0.0) ? 1.0 : P0[8]);
     const double t2 = P0[2]/t1;
@@ -194,7 +198,7 @@ int ca_udkf_enter(const double *restrict x0, const double *restrict P0, double *
     const double t4 = DERIVE_FNMA(P0[5], t3, P0[4]);
     const double t5 = 2.2250738585072014e-308 + t4;
     if (!(t5 > 0.0)) {
-        return 8; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 9; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t6 = ((t4 <= 0.0) ? 1.0 : t4);
     const double t7 = DERIVE_FNMA(P0[2], t3, P0[1]);
@@ -202,7 +206,7 @@ int ca_udkf_enter(const double *restrict x0, const double *restrict P0, double *
     const double t9 = DERIVE_FNMA(t7, t8, DERIVE_FNMA(P0[2], t2, P0[0]));
     const double t10 = 2.2250738585072014e-308 + t9;
     if (!(t10 > 0.0)) {
-        return 9; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 10; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];

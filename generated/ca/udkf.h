@@ -23,17 +23,18 @@
  *     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
  *     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
- *     enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 4, mul 24, div 6, sqrt 0, fma 30, neg 1, cmp 8, select 2, calls 0 (flops 109, instructions 90)
+ *     step 7: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 4, mul 24, div 6, sqrt 0, fma 30, neg 1, cmp 9, select 2, calls 0 (flops 109, instructions 91)
  * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 3, sub 0, mul 0, div 3, sqrt 0, fma 4, neg 0, cmp 5, select 2, calls 0 (flops 14, instructions 17)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 11, instructions 7)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["ca_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["ca_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["ca_udkf_store","store",false,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["ca_udkf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["enter",7,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",8,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
+ * derive-interface: {"functions":[["ca_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["ca_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["ca_udkf_store","store",false,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["ca_udkf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",7,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["enter",8,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",10,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]],"present":{"7":["z",["z"]]}}
  */
 #ifndef DERIVE_ca_udkf_H
 #define DERIVE_ca_udkf_H
@@ -69,9 +70,10 @@ enum ca_udkf_status {
     ca_udkf_STATUS_STEP_INNOVATION_VARIANCE_0_SCALAR_UPDATE_NOT_POSITIVE_4 = 4,
     ca_udkf_STATUS_STEP_INNOVATION_VARIANCE_1_SCALAR_UPDATE_NOT_POSITIVE_5 = 5,
     ca_udkf_STATUS_STEP_INNOVATION_VARIANCE_2_SCALAR_UPDATE_NOT_POSITIVE_6 = 6,
-    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_7 = 7,
+    ca_udkf_STATUS_STEP_MEASUREMENT_NAN_7 = 7,
     ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_8 = 8,
-    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_9 = 9
+    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_9 = 9,
+    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_10 = 10
 };
 
 #ifdef __cplusplus

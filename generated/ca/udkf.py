@@ -23,10 +23,11 @@ status (C return value; Python raises NumericalError): 0 success
     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
-    enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-operations per call of step (Python): add 35, sub 14, mul 54, div 6, sqrt 0, fma 0, neg 0, cmp 8, select 2, calls 0 (flops 109, instructions 119)
+    step 7: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+operations per call of step (Python): add 35, sub 14, mul 54, div 6, sqrt 0, fma 0, neg 0, cmp 9, select 2, calls 0 (flops 109, instructions 120)
 operations per call of enter (Python): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 5, select 2, calls 0 (flops 14, instructions 21)
 operations per call of store (Python): add 4, sub 0, mul 7, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 11, instructions 11)
 P0 pattern declared: zero
@@ -77,6 +78,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -209,6 +231,7 @@ def _step(x, U, D, z):
     t65 = t37 + t60*t64
     t66 = t38 + t62*t64
     t67 = x[2] + t40*t64
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t65, t66, t67]
     U_new = [1.0, t51, t59, 0.0, 1.0, t61, 0.0, 0.0, 1.0]
     D_new = [t44, t49, t57]
@@ -313,10 +336,13 @@ def run(zs, x0, P0):
     Ps = np.empty((steps, 9) + track)
     x, U, D = _enter(x0, P0.reshape((9,) + P0.shape[2:]))
     for k in range(steps):
-        x, U, D = _step(x, U, D, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
-        Ps_k = _store(x, U, D)
-        for i in range(9):
-            Ps[k, i] = Ps_k[i]
+        try:
+            x, U, D = _step(x, U, D, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+            Ps_k = _store(x, U, D)
+            for i in range(9):
+                Ps[k, i] = Ps_k[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 3, 3) + track)

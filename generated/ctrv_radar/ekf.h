@@ -18,14 +18,15 @@
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 22, sub 20, mul 71, div 6, sqrt 1, fma 86, neg 5, cmp 11, select 9, calls 7 (flops 292, instructions 231)
+ *     step 3: measurement is NaN (filter ekf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 22, sub 20, mul 71, div 6, sqrt 1, fma 86, neg 5, cmp 13, select 9, calls 7 (flops 292, instructions 233)
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 2, mul 21, div 2, sqrt 0, fma 44, neg 5, cmp 9, select 9, calls 5 (flops 128, instructions 107)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
  * angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))
- * derive-interface: {"functions":[["ctrv_radar_ekf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ekf_predict","predict",false,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ekf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ctrv_radar_ekf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ekf_predict","predict",false,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ekf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"measurement is NaN (filter ekf takes no absent measurements)",[]]],"present":{"3":["z",["range","bearing"]]}}
  */
 #ifndef DERIVE_ctrv_radar_ekf_H
 #define DERIVE_ctrv_radar_ekf_H
@@ -56,7 +57,8 @@
 enum ctrv_radar_ekf_status {
     ctrv_radar_ekf_STATUS_OK = 0,
     ctrv_radar_ekf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
-    ctrv_radar_ekf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2
+    ctrv_radar_ekf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2,
+    ctrv_radar_ekf_STATUS_STEP_MEASUREMENT_NAN_3 = 3
 };
 
 #ifdef __cplusplus

@@ -18,7 +18,8 @@ symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written wh
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 88, sub 40, mul 157, div 6, sqrt 1, fma 0, neg 3, cmp 11, select 9, calls 7 (flops 292, instructions 315)
+    step 3: measurement is NaN (filter ekf takes no absent measurements)
+operations per call of step (Python): add 88, sub 40, mul 157, div 6, sqrt 1, fma 0, neg 3, cmp 13, select 9, calls 7 (flops 292, instructions 317)
 operations per call of predict (Python): add 53, sub 8, mul 65, div 2, sqrt 0, fma 0, neg 3, cmp 9, select 9, calls 5 (flops 128, instructions 149)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
@@ -79,6 +80,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -276,6 +298,7 @@ def _step(x, P, z):
     t136 = t50 - t121
     t137 = t40 - t122
     t138 = t51 - t123
+    _require_present((z[0], z[1],), ('range (z[0])', 'bearing (z[1])'), 'measurement is NaN (filter ekf takes no absent measurements)')
     x_new = [t104, t105, t106, t107, t108]
     P_new = [
         t124, t125, t126, t127, t128, t125, t129, t130, t131, t132, t126, t130, t133, t134,
@@ -509,6 +532,8 @@ def run(zs, x0, P0):
             P_18 = t50 - (t67*t88 + t83*t93)
             P_19 = t40 - (t69*t88 + t84*t93)
             P_24 = t51 - (t69*t89 + t84*t94)
+            if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 160}: " + _nan_named((z_0, z_1,), ('range (z[0])', 'bearing (z[1])'), 'measurement is NaN (filter ekf takes no absent measurements)'))
             keep(pack(x_0, x_1, x_2, x_3, x_4, P_0, P_1, P_2, P_3, P_4, P_6, P_7, P_8, P_9, P_12,
                     P_13, P_14, P_18, P_19, P_24))
         table = np.frombuffer(rows).reshape(-1, 20)
@@ -519,9 +544,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((25,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(5):
-            xs[k, i] = x[i]
-        for i in range(25):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(5):
+                xs[k, i] = x[i]
+            for i in range(25):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 5, 5) + track)

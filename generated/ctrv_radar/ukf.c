@@ -28,12 +28,13 @@
  *     step 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
  *     step 11: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 12: Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     predict 13: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
- *     predict 14: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
- *     predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
- *     predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
- *     predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 217, sub 139, mul 403, div 25, sqrt 14, fma 305, neg 32, cmp 45, select 33, calls 97 (flops 1408, instructions 1213)
+ *     step 13: measurement is NaN (filter ukf takes no absent measurements)
+ *     predict 14: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
+ *     predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
+ *     predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
+ *     predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
+ *     predict 18: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 217, sub 139, mul 403, div 25, sqrt 14, fma 305, neg 32, cmp 47, select 33, calls 97 (flops 1408, instructions 1215)
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 191, sub 95, mul 306, div 15, sqrt 5, fma 218, neg 31, cmp 38, select 33, calls 87 (flops 1048, instructions 932)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -2, n + lambda = 3; weights Wm0 = -2/3, Wc0 = -2/3, Wi = 1/6 (i = 1..10)
@@ -42,7 +43,7 @@
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
  * angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi)), and so are the sigma points' deviations from h(x) (the point X_0 = x): their mean is h(x) plus the weighted mean of those deviations, the spreads the deviations minus that mean
- * derive-interface: {"functions":[["ctrv_radar_ukf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_predict","predict",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",6,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",7,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",8,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",9,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",11,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",12,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["predict",13,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["predict",14,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["predict",15,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["predict",16,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["predict",17,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ctrv_radar_ukf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_predict","predict",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",6,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",7,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",8,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",9,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",11,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",12,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",13,"measurement is NaN (filter ukf takes no absent measurements)",[]],["predict",14,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["predict",15,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["predict",16,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["predict",17,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["predict",18,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]]],"present":{"13":["z",["range","bearing"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -580,6 +581,8 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
 static int ctrv_radar_ukf_step_body_part2(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict w, int status)
 {
     (void)P;
+    (void)x_new;
+    (void)P_new;
     const double t424 = 0.16666666666666666*w[77];
     const double t425 = DERIVE_FNMA(w[67], w[28], DERIVE_FNMA(w[65], w[27], DERIVE_FNMA(w[63], w[26], DERIVE_FNMA(w[61], w[25], DERIVE_FMA(w[58], w[28], DERIVE_FMA(w[56], w[27], DERIVE_FMA(w[54], w[26], DERIVE_FMA(w[52], w[25], w[75] + w[76]))))))));
     const double t426 = 0.16666666666666666*t425;
@@ -793,46 +796,80 @@ static int ctrv_radar_ukf_step_body_part2(const double *restrict x, const double
     const double t622 = t445 - t607;
     const double t623 = t447 - t608;
     const double t624 = t449 - t609;
-    x_new[0] = t590;
-    x_new[1] = t591;
-    x_new[2] = t592;
-    x_new[3] = t593;
-    x_new[4] = t594;
-    P_new[0] = t610;
-    P_new[1] = t611;
-    P_new[2] = t612;
-    P_new[3] = t613;
-    P_new[4] = t614;
-    P_new[5] = t611;
-    P_new[6] = t615;
-    P_new[7] = t616;
-    P_new[8] = t617;
-    P_new[9] = t618;
-    P_new[10] = t612;
-    P_new[11] = t616;
-    P_new[12] = t619;
-    P_new[13] = t620;
-    P_new[14] = t621;
-    P_new[15] = t613;
-    P_new[16] = t617;
-    P_new[17] = t620;
-    P_new[18] = t622;
-    P_new[19] = t623;
-    P_new[20] = t614;
-    P_new[21] = t618;
-    P_new[22] = t621;
-    P_new[23] = t623;
-    P_new[24] = t624;
+    if (!((z[0] == z[0])) && !status) {
+        status = 13; /* measurement is NaN (filter ukf takes no absent measurements) */
+    }
+    w[78] = t590;
+    w[79] = t591;
+    w[80] = t592;
+    w[81] = t593;
+    w[82] = t594;
+    w[83] = t610;
+    w[84] = t611;
+    w[85] = t612;
+    w[86] = t613;
+    w[87] = t614;
+    w[88] = t615;
+    w[89] = t616;
+    w[90] = t617;
+    w[91] = t618;
+    w[92] = t619;
+    w[93] = t620;
+    w[94] = t621;
+    w[95] = t622;
+    w[96] = t623;
+    w[97] = t624;
+    return status;
+}
+
+static int ctrv_radar_ukf_step_body_part3(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict w, int status)
+{
+    (void)x;
+    (void)P;
+    if (!((z[1] == z[1])) && !status) {
+        status = 13; /* measurement is NaN (filter ukf takes no absent measurements) */
+    }
+    x_new[0] = w[78];
+    x_new[1] = w[79];
+    x_new[2] = w[80];
+    x_new[3] = w[81];
+    x_new[4] = w[82];
+    P_new[0] = w[83];
+    P_new[1] = w[84];
+    P_new[2] = w[85];
+    P_new[3] = w[86];
+    P_new[4] = w[87];
+    P_new[5] = w[84];
+    P_new[6] = w[88];
+    P_new[7] = w[89];
+    P_new[8] = w[90];
+    P_new[9] = w[91];
+    P_new[10] = w[85];
+    P_new[11] = w[89];
+    P_new[12] = w[92];
+    P_new[13] = w[93];
+    P_new[14] = w[94];
+    P_new[15] = w[86];
+    P_new[16] = w[90];
+    P_new[17] = w[93];
+    P_new[18] = w[95];
+    P_new[19] = w[96];
+    P_new[20] = w[87];
+    P_new[21] = w[91];
+    P_new[22] = w[94];
+    P_new[23] = w[96];
+    P_new[24] = w[97];
     return status;
 }
 
 static int ctrv_radar_ukf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
-    double w[78];
+    double w[98];
     int status = 0;
     status = ctrv_radar_ukf_step_body_part0(x, P, z, x_new, P_new, w, status);
     status = ctrv_radar_ukf_step_body_part1(x, P, z, x_new, P_new, w, status);
     status = ctrv_radar_ukf_step_body_part2(x, P, z, x_new, P_new, w, status);
+    status = ctrv_radar_ukf_step_body_part3(x, P, z, x_new, P_new, w, status);
     return status;
 }
 
@@ -866,7 +903,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t29 = DERIVE_FMA(x[2], t27, x[1]);
     const double t30 = ((t0 > 0.03) ? t24 : t29);
     if (!(P[0] > 0.0)) {
-        return 13; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
+        return 14; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     }
     const double t31 = sqrt(P[0]);
     const double t32 = 1.0/t31;
@@ -876,7 +913,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t36 = P[4]*t32;
     const double t37 = DERIVE_FNMA(t33, t33, P[6]);
     if (!(t37 > 0.0)) {
-        return 14; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
+        return 15; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     }
     const double t38 = sqrt(t37);
     const double t39 = 1.0/t38;
@@ -885,7 +922,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t42 = t39*DERIVE_FNMA(t33, t36, P[9]);
     const double t43 = DERIVE_FNMA(t40, t40, DERIVE_FNMA(t34, t34, P[12]));
     if (!(t43 > 0.0)) {
-        return 15; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
+        return 16; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     }
     const double t44 = sqrt(t43);
     const double t45 = 1.0/t44;
@@ -893,14 +930,14 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t47 = t45*DERIVE_FNMA(t40, t42, DERIVE_FNMA(t34, t36, P[14]));
     const double t48 = DERIVE_FNMA(t46, t46, DERIVE_FNMA(t41, t41, DERIVE_FNMA(t35, t35, P[18])));
     if (!(t48 > 0.0)) {
-        return 16; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
+        return 17; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     }
     const double t49 = sqrt(t48);
     const double t50 = 1.0/t49;
     const double t51 = t50*DERIVE_FNMA(t46, t47, DERIVE_FNMA(t41, t42, DERIVE_FNMA(t35, t36, P[19])));
     const double t52 = DERIVE_FNMA(t51, t51, DERIVE_FNMA(t47, t47, DERIVE_FNMA(t42, t42, DERIVE_FNMA(t36, t36, P[24]))));
     if (!(t52 > 0.0)) {
-        return 17; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive */
+        return 18; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive */
     }
     const double t53 = sqrt(t52);
     const double t54 = 1.7320508075688772*t31;

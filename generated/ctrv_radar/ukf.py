@@ -28,12 +28,13 @@ status (C return value; Python raises NumericalError): 0 success
     step 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
     step 11: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 12: Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    predict 13: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
-    predict 14: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
-    predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
-    predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
-    predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
-operations per call of step (Python): add 367, sub 294, mul 708, div 25, sqrt 14, fma 0, neg 12, cmp 45, select 33, calls 97 (flops 1408, instructions 1498)
+    step 13: measurement is NaN (filter ukf takes no absent measurements)
+    predict 14: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
+    predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
+    predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
+    predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
+    predict 18: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
+operations per call of step (Python): add 367, sub 294, mul 708, div 25, sqrt 14, fma 0, neg 12, cmp 47, select 33, calls 97 (flops 1408, instructions 1500)
 operations per call of predict (Python): add 295, sub 209, mul 524, div 15, sqrt 5, fma 0, neg 11, cmp 38, select 33, calls 87 (flops 1048, instructions 1130)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 sigma points: alpha = 1, beta = 0, kappa = -2, n + lambda = 3; weights Wm0 = -2/3, Wc0 = -2/3, Wi = 1/6 (i = 1..10)
@@ -96,6 +97,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -789,6 +811,7 @@ def _step(x, P, z):
     t622 = t445 - t607
     t623 = t447 - t608
     t624 = t449 - t609
+    _require_present((z[0], z[1],), ('range (z[0])', 'bearing (z[1])'), 'measurement is NaN (filter ukf takes no absent measurements)')
     x_new = [t590, t591, t592, t593, t594]
     P_new = [
         t610, t611, t612, t613, t614, t611, t615, t616, t617, t618, t612, t616, t619, t620,
@@ -1736,6 +1759,8 @@ def run(zs, x0, P0):
             P_18 = t445 - (t552*t578 + t553*t573)
             P_19 = t447 - (t554*t578 + t555*t573)
             P_24 = t449 - (t554*t579 + t555*t574)
+            if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 160}: " + _nan_named((z_0, z_1,), ('range (z[0])', 'bearing (z[1])'), 'measurement is NaN (filter ukf takes no absent measurements)'))
             keep(pack(x_0, x_1, x_2, x_3, x_4, P_0, P_1, P_2, P_3, P_4, P_6, P_7, P_8, P_9, P_12,
                     P_13, P_14, P_18, P_19, P_24))
         table = np.frombuffer(rows).reshape(-1, 20)
@@ -1746,9 +1771,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((25,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(5):
-            xs[k, i] = x[i]
-        for i in range(25):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(5):
+                xs[k, i] = x[i]
+            for i in range(25):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 5, 5) + track)

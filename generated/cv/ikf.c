@@ -20,11 +20,12 @@
  *     step 2: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 4: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 8, sub 1, mul 6, div 4, sqrt 0, fma 6, neg 0, cmp 4, calls 0 (flops 31, instructions 29)
+ *     step 5: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 8, sub 1, mul 6, div 4, sqrt 0, fma 6, neg 0, cmp 5, calls 0 (flops 31, instructions 30)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["cv_ikf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["cv_ikf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",5,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"5":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -137,6 +138,9 @@ DERIVE_INLINE int cv_ikf_step_body(const double *restrict x, const double *restr
     const double t22 = z[0] - t0;
     const double t25 = DERIVE_FMA(t20, t22, t0);
     const double t26 = DERIVE_FMA(t21, t22, x[1 * s]);
+    if (!((z[0] == z[0])) && !status) {
+        status = 5; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t25;
     x_new[1 * s] = t26;
     P_new[0] = t19;

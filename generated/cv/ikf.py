@@ -18,7 +18,8 @@ status (C return value; Python raises NumericalError): 0 success
     step 2: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 4: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 12, sub 3, mul 12, div 4, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 31, instructions 35)
+    step 5: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+operations per call of step (Python): add 12, sub 3, mul 12, div 4, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 31, instructions 36)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -58,6 +59,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -145,6 +167,7 @@ def _step(x, P, z):
     t24 = t21*t22
     t25 = t0 + t23
     t26 = x[1] + t24
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t25, t26]
     P_new = [t19, t18, t18, t17]
     return x_new, P_new
@@ -209,6 +232,8 @@ def run(zs, x0, P0):
             t22 = z_0 - t0
             x_0 = t0 + 10.0*P_0*t22
             x_1 = x_1 + 10.0*P_1*t22
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 40}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, P_0, P_1, P_3))
         table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
@@ -217,9 +242,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(2):
-            xs[k, i] = x[i]
-        for i in range(4):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(2):
+                xs[k, i] = x[i]
+            for i in range(4):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 2, 2) + track)

@@ -15,7 +15,8 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 35, sub 12, mul 52, div 4, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 103, instructions 104)
+    step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+operations per call of step (Python): add 35, sub 12, mul 52, div 4, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 103, instructions 105)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -55,6 +56,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -181,6 +203,7 @@ def _step(x, P, z):
     t66 = 0.5*t63
     t67 = 0.5*t64
     t68 = 0.5*t65
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t61, t62]
     P_new = [t66, t67, t67, t68]
     return x_new, P_new
@@ -252,6 +275,8 @@ def run(zs, x0, P0):
             t66 = 0.5*(t4 - t4*t8 + (0.0032258064516129032 + (0.967741935483871*t49 + 0.967741935483871*t50)))
             t67 = 0.5*(t5 - t5*t8 + (0.004838709677419355 + (0.9516129032258065*t50 - 0.04838709677419355*t49)))
             P_3 = 0.5*(t6 - t5*t9 + (0.009758064516129032 + (0.9516129032258065*(P_3*t36 - P_1*t35) - 0.04838709677419355*(P_1*t36 - P_0*t35))))
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 40}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, t66, t67, P_3))
             P_0 = t66
             P_1 = t67
@@ -262,9 +287,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(2):
-            xs[k, i] = x[i]
-        for i in range(4):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(2):
+                xs[k, i] = x[i]
+            for i in range(4):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 2, 2) + track)

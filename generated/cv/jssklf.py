@@ -12,7 +12,9 @@ parameters: none
 interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(x[2], z[1]) -> (x_new[2])
     run(zs[steps, 1], x0[2]) -> (xs[steps, 2])
-operations per call of step (Python): add 3, sub 1, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 10, instructions 10)
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (filter jssklf takes no absent measurements)
+operations per call of step (Python): add 3, sub 1, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 10, instructions 11)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 A = [[ 0.45147237290283504,  0.45147237290283504], [-0.21247879256594887,  0.7875212074340512 ]]
 B = [[0.548527627097165 ], [0.2124787925659489]]
@@ -36,6 +38,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -71,9 +101,11 @@ def step(x, z):
         z [1]: z(k+1)
     Returns:
         x_new [2]: x(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     """
     t0 = 0.45147237290283504*x[0] + 0.45147237290283504*x[1] + 0.548527627097165*z[0]
     t1 = 0.7875212074340512*x[1] - 0.21247879256594887*x[0] + 0.2124787925659489*z[0]
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (filter jssklf takes no absent measurements)')
     x_new = [t0, t1]
     return x_new
 
@@ -104,6 +136,8 @@ def run(zs, x0):
         for z_0 in array("d", zs.tobytes()):
             t0 = 0.45147237290283504*x_0 + 0.45147237290283504*x_1 + 0.548527627097165*z_0
             x_1 = 0.7875212074340512*x_1 - 0.21247879256594887*x_0 + 0.2124787925659489*z_0
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 16}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (filter jssklf takes no absent measurements)'))
             keep(pack(t0, x_1))
             x_0 = t0
         table = np.frombuffer(rows).reshape(-1, 2)
@@ -111,7 +145,10 @@ def run(zs, x0):
     xs = np.empty((steps, 2) + track)
     x = x0
     for k in range(steps):
-        x = step(x, zs[k])
-        for i in range(2):
-            xs[k, i] = x[i]
+        try:
+            x = step(x, zs[k])
+            for i in range(2):
+                xs[k, i] = x[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs

@@ -15,7 +15,8 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
 symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 10, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 21, instructions 22)
+    step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+operations per call of step (Python): add 10, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 21, instructions 23)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -52,6 +53,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -132,6 +154,7 @@ def _step(x, P, z):
     t18 = t4 - t15
     t19 = t5 - t16
     t20 = t6 - t17
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t13, t14]
     P_new = [t18, t19, t19, t20]
     x_pred = [t0, x[1]]
@@ -172,13 +195,16 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])
     for k in range(steps):
-        x, P, x_pred, P_pred = _step(x, P, zs[k])
-        for i in range(2):
-            xs[k, i] = x[i]
-        for i in range(4):
-            Ps[k, i] = P[i]
-        for i in range(2):
-            x_preds[k, i] = x_pred[i]
-        for i in range(4):
-            P_preds[k, i] = P_pred[i]
+        try:
+            x, P, x_pred, P_pred = _step(x, P, zs[k])
+            for i in range(2):
+                xs[k, i] = x[i]
+            for i in range(4):
+                Ps[k, i] = P[i]
+            for i in range(2):
+                x_preds[k, i] = x_pred[i]
+            for i in range(4):
+                P_preds[k, i] = P_pred[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 2, 2) + track), x_preds, P_preds.reshape((steps, 2, 2) + track)

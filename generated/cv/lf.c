@@ -10,16 +10,18 @@
  * m: 1 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void cv_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
- *     void cv_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
- *     void cv_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     int cv_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
+ *     int cv_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     int cv_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: cv_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 0, mul 21, div 2, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 72, instructions 51)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 0, mul 21, div 2, sqrt 0, fma 21, neg 0, cmp 1, calls 0 (flops 72, instructions 52)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["cv_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_lf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["cv_lf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_lf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_lf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"1":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -92,8 +94,9 @@
 #endif
 #endif
 
-DERIVE_INLINE void cv_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+DERIVE_INLINE int cv_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
+    int status = 0;
     const double t0 = 9.67741935483871*P[1 * s];
     const double t1 = DERIVE_FMA(9.67741935483871, P[0], t0);
     const double t2 = DERIVE_FMA(9.67741935483871, P[3 * s], t0);
@@ -130,21 +133,25 @@ DERIVE_INLINE void cv_lf_step_body(const double *restrict x, const double *restr
     const double t35 = 0.0032258064516129032 + t32;
     const double t36 = 0.004838709677419355 + t33;
     const double t37 = 0.009758064516129032 + t34;
+    if (!((z[0] == z[0])) && !status) {
+        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t26;
     x_new[1 * s] = t27;
     P_new[0] = t35;
     P_new[1 * s] = t36;
     P_new[2 * s] = t36;
     P_new[3 * s] = t37;
+    return status;
 }
 
-void cv_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+int cv_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
-    cv_lf_step_body(x, P, z, x_new, P_new, 1);
+    return cv_lf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
-void cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     double x[2];
     double P[4];
@@ -160,7 +167,10 @@ void cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0
     /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        cv_lf_step_body(x, P, zk, x_new, P_new, 1);
+        const int step_status = cv_lf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
         P[0] = P_new[0];
@@ -174,6 +184,7 @@ void cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0
             Ps[k * 4 + 3] = P_new[3];
         }
     }
+    return 0;
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
@@ -183,7 +194,7 @@ void cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0
  * over the lanes in one loop the compiler vectorises, each lane the operations of its own
  * run in the same order; the last tracks, fewer than a block, by run itself.
  * A non-zero status stops the whole run. */
-void cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
     size_t k, i, j;
@@ -204,6 +215,7 @@ void cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double
         double *P_b = P_b_pair[0];
         double *P_new_b = P_b_pair[1];
         double z_b[1 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 2; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 2 + i];
@@ -239,7 +251,20 @@ void cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                cv_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+                status_b[j] = cv_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 2; ++i) {
@@ -265,6 +290,10 @@ void cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double
     }
     /* the last tracks, fewer than a block: run on each */
     for (; t < tracks; ++t) {
-        cv_lf_run(steps, z + t * steps * 1, x0 + t * 2, P0 + t * 2 * 2, xs + t * steps * 2, Ps ? Ps + t * steps * 2 * 2 : NULL);
+        const int track_status = cv_lf_run(steps, z + t * steps * 1, x0 + t * 2, P0 + t * 2 * 2, xs + t * steps * 2, Ps ? Ps + t * steps * 2 * 2 : NULL);
+        if (track_status) {
+            return track_status;
+        }
     }
+    return 0;
 }

@@ -10,16 +10,18 @@
  * m: 1 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void cv_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
- *     void cv_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
- *     void cv_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     int cv_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
+ *     int cv_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     int cv_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: cv_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 0, mul 21, div 2, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 72, instructions 51)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 0, mul 21, div 2, sqrt 0, fma 21, neg 0, cmp 1, calls 0 (flops 72, instructions 52)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["cv_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_lf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["cv_lf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_lf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_lf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"1":["z",["z"]]}}
  */
 #ifndef DERIVE_cv_lf_H
 #define DERIVE_cv_lf_H
@@ -46,13 +48,19 @@
 #define cv_lf_M 1
 #define cv_lf_NP 0
 
+/* the statuses listed above, by name (the functions return them as int) */
+enum cv_lf_status {
+    cv_lf_STATUS_OK = 0,
+    cv_lf_STATUS_STEP_MEASUREMENT_NAN_1 = 1
+};
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void cv_lf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new);
-void cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
-void cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int cv_lf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new);
+int cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }

@@ -11,17 +11,19 @@
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
  *     void cv_pred_init(x0[2], x_new[2] out)
- *     void cv_pred_step(x[2], z[1], x_new[2] out)
- *     void cv_pred_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ *     int cv_pred_step(x[2], z[1], x_new[2] out)
+ *     int cv_pred_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter pred takes no absent measurements)
  * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 8, instructions 4)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 8, instructions 5)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A_N = [[ 0.23899358033688614,  1.                 ], [-0.2124787925659489 ,  1.                 ]]
  * B_N = [[0.7610064196631139], [0.2124787925659489]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 22, instructions 12)
- * derive-interface: {"functions":[["cv_pred_init","init",false,false,[["x0",[2],false,false,false],["x_new",[2],true,false,false]]],["cv_pred_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["cv_pred_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 22, instructions 14)
+ * derive-interface: {"functions":[["cv_pred_init","init",false,false,[["x0",[2],false,false,false],["x_new",[2],true,false,false]]],["cv_pred_step","step",true,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["cv_pred_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter pred takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -58,20 +60,30 @@
 #endif
 #endif
 
-DERIVE_INLINE void cv_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int cv_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.23899358033688614, x[0], DERIVE_FMA(0.7610064196631139, z[0], x[1 * s]));
     const double t1 = DERIVE_FMA((-0.2124787925659489), x[0], DERIVE_FMA(0.2124787925659489, z[0], x[1 * s]));
+    if (!((z[0] == z[0])) && !status) {
+        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
+    return status;
 }
 
-DERIVE_INLINE void cv_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int cv_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(1.2389935803368861, x[1 * s], DERIVE_FMA((-0.15536086112370526), x[0], DERIVE_FMA(0.7610064196631139, zn[0], 0.3943544414605914*z[0])));
     const double t1 = DERIVE_FMA(0.7875212074340511, x[1 * s], DERIVE_FMA((-0.26325985994694356), x[0], DERIVE_FMA(0.2124787925659489, zn[0], 0.050781067380994666*z[0])));
+    if (!((zn[0] == zn[0])) && !status) {
+        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
+    return status;
 }
 
 void cv_pred_init(const double *restrict x0, double *restrict x_new)
@@ -81,13 +93,13 @@ void cv_pred_init(const double *restrict x0, double *restrict x_new)
     x_new[1] = x0[1];
 }
 
-void cv_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int cv_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    cv_pred_step_body(x, z, x_new, 1);
+    return cv_pred_step_body(x, z, x_new, 1);
 }
 
 /* Run the predictor from x(N/0) = init(x0): row k of xs is the prediction after z[k]. */
-void cv_pred_run(size_t steps, const double *z, const double *x0, double *xs)
+int cv_pred_run(size_t steps, const double *z, const double *x0, double *xs)
 {
     double x_init[2];
     double x[2];
@@ -102,8 +114,14 @@ void cv_pred_run(size_t steps, const double *z, const double *x0, double *xs)
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 1;
         const double *restrict znk = z + (k + 1) * 1;
-        cv_pred_step_body(x, zk, x_mid, 1);
-        cv_pred_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = cv_pred_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = cv_pred_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 2 + 0] = x_mid[0];
         xs[k * 2 + 1] = x_mid[1];
         xs[(k + 1) * 2 + 0] = x[0] = x_new[0];
@@ -112,8 +130,12 @@ void cv_pred_run(size_t steps, const double *z, const double *x0, double *xs)
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        cv_pred_step_body(x, zk, x_new, 1);
+        const int step_status = cv_pred_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
     }
+    return 0;
 }

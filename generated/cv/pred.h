@@ -11,17 +11,19 @@
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
  *     void cv_pred_init(x0[2], x_new[2] out)
- *     void cv_pred_step(x[2], z[1], x_new[2] out)
- *     void cv_pred_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ *     int cv_pred_step(x[2], z[1], x_new[2] out)
+ *     int cv_pred_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter pred takes no absent measurements)
  * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 8, instructions 4)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 8, instructions 5)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A_N = [[ 0.23899358033688614,  1.                 ], [-0.2124787925659489 ,  1.                 ]]
  * B_N = [[0.7610064196631139], [0.2124787925659489]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 22, instructions 12)
- * derive-interface: {"functions":[["cv_pred_init","init",false,false,[["x0",[2],false,false,false],["x_new",[2],true,false,false]]],["cv_pred_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["cv_pred_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 22, instructions 14)
+ * derive-interface: {"functions":[["cv_pred_init","init",false,false,[["x0",[2],false,false,false],["x_new",[2],true,false,false]]],["cv_pred_step","step",true,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["cv_pred_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter pred takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #ifndef DERIVE_cv_pred_H
 #define DERIVE_cv_pred_H
@@ -48,13 +50,19 @@
 #define cv_pred_M 1
 #define cv_pred_NP 0
 
+/* the statuses listed above, by name (the functions return them as int) */
+enum cv_pred_status {
+    cv_pred_STATUS_OK = 0,
+    cv_pred_STATUS_STEP_MEASUREMENT_NAN_1 = 1
+};
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
 void cv_pred_init(const double *DERIVE_RESTRICT x0, double *DERIVE_RESTRICT x_new);
-void cv_pred_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
-void cv_pred_run(size_t steps, const double *z, const double *x0, double *xs);
+int cv_pred_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
+int cv_pred_run(size_t steps, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

@@ -13,8 +13,10 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     init(x0[2]) -> (x_new[2])
     step(x[2], z[1]) -> (x_new[2])
     run(zs[steps, 1], x0[2]) -> (xs[steps, 2])
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (filter pred takes no absent measurements)
 operations per call of init (Python): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
-operations per call of step (Python): add 3, sub 1, mul 4, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 8, instructions 8)
+operations per call of step (Python): add 3, sub 1, mul 4, div 0, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 8, instructions 9)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 A_N = [[ 0.23899358033688614,  1.                 ], [-0.2124787925659489 ,  1.                 ]]
 B_N = [[0.7610064196631139], [0.2124787925659489]]
@@ -39,6 +41,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -87,9 +117,11 @@ def step(x, z):
         z [1]: z(k+1)
     Returns:
         x_new [2]: x(k+1/k)
+    Raises NumericalError when a runtime check fails.
     """
     t0 = 0.23899358033688614*x[0] + x[1] + 0.7610064196631139*z[0]
     t1 = x[1] - 0.2124787925659489*x[0] + 0.2124787925659489*z[0]
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (filter pred takes no absent measurements)')
     x_new = [t0, t1]
     return x_new
 
@@ -121,6 +153,8 @@ def run(zs, x0):
         for z_0 in array("d", zs.tobytes()):
             t0 = 0.23899358033688614*x_0 + x_1 + 0.7610064196631139*z_0
             x_1 = x_1 - 0.2124787925659489*x_0 + 0.2124787925659489*z_0
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 16}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (filter pred takes no absent measurements)'))
             keep(pack(t0, x_1))
             x_0 = t0
         table = np.frombuffer(rows).reshape(-1, 2)
@@ -128,7 +162,10 @@ def run(zs, x0):
     xs = np.empty((steps, 2) + track)
     x = init(x0)
     for k in range(steps):
-        x = step(x, zs[k])
-        for i in range(2):
-            xs[k, i] = x[i]
+        try:
+            x = step(x, zs[k])
+            for i in range(2):
+                xs[k, i] = x[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs

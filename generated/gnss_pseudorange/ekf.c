@@ -22,15 +22,17 @@
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
- *     update1 5: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 16, sub 26, mul 52, div 8, sqrt 4, fma 168, neg 0, cmp 4, calls 0 (flops 442, instructions 278)
+ *     step 5: measurement is NaN (filter ekf takes no absent measurements)
+ *     update1 6: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     update1 7: measurement is NaN (filter ekf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 16, sub 26, mul 52, div 8, sqrt 4, fma 168, neg 0, cmp 8, calls 0 (flops 442, instructions 282)
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
- * operations per call of update1 (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 4, mul 8, div 2, sqrt 1, fma 31, neg 0, cmp 1, calls 0 (flops 79, instructions 49)
+ * operations per call of update1 (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 4, mul 8, div 2, sqrt 1, fma 31, neg 0, cmp 2, calls 0 (flops 79, instructions 50)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
- * derive-interface: {"functions":[["gnss_pseudorange_ekf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[4],false,false,false],["u",[12],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_predict","predict",false,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_update1","update1",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[1],false,false,false],["u",[3],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["innovation",[1],true,false,false],["variance",[1],true,false,false]]],["gnss_pseudorange_ekf_run","run",true,true,[["z",["steps",4],false,false,false,false,"zs"],["u",["steps",12],false,false,false,false,"us"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["update1",5,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["gnss_pseudorange_ekf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[4],false,false,false],["u",[12],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_predict","predict",false,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_update1","update1",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[1],false,false,false],["u",[3],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["innovation",[1],true,false,false],["variance",[1],true,false,false]]],["gnss_pseudorange_ekf_run","run",true,true,[["z",["steps",4],false,false,false,false,"zs"],["u",["steps",12],false,false,false,false,"us"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["step",5,"measurement is NaN (filter ekf takes no absent measurements)",[]],["update1",6,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["update1",7,"measurement is NaN (filter ekf takes no absent measurements)",[]]],"present":{"5":["z",["D1","D2","D3","D4"]],"7":["z",["one measurement"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -231,6 +233,9 @@ DERIVE_INLINE int gnss_pseudorange_ekf_step_body(const double *restrict x, const
     const double t146 = t2 - t136;
     const double t147 = P[11 * s] - t137;
     const double t148 = t3 - t138;
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s]) & (z[3 * s] == z[3 * s])) && !status) {
+        status = 5; /* measurement is NaN (filter ekf takes no absent measurements) */
+    }
     x_new[0] = t125;
     x_new[1 * s] = t126;
     x_new[2 * s] = t127;
@@ -305,7 +310,7 @@ int gnss_pseudorange_ekf_update1(const double *restrict x, const double *restric
     const double t13 = DERIVE_FMA(t6, t9, DERIVE_FMA(t11, t8, DERIVE_FMA(t10, t7, t12)));
     const double t14 = 100.0 + t13;
     if (!(t14 > 0.0)) {
-        return 5; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 6; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t15 = 1.0/t14;
     const double t16 = t15*t9;
@@ -327,6 +332,9 @@ int gnss_pseudorange_ekf_update1(const double *restrict x, const double *restric
     const double t46 = DERIVE_FNMA(t11, t18, P[10]);
     const double t47 = DERIVE_FNMA(t12, t18, P[11]);
     const double t48 = DERIVE_FNMA(t12, t19, P[15]);
+    if (!((z[0] == z[0]))) {
+        return 7; /* measurement is NaN (filter ekf takes no absent measurements) */
+    }
     x_new[0] = t25;
     x_new[1] = t26;
     x_new[2] = t27;

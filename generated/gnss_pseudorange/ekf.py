@@ -22,10 +22,12 @@ status (C return value; Python raises NumericalError): 0 success
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
-    update1 5: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 144, sub 66, mul 220, div 8, sqrt 4, fma 0, neg 0, cmp 4, calls 0 (flops 442, instructions 446)
+    step 5: measurement is NaN (filter ekf takes no absent measurements)
+    update1 6: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    update1 7: measurement is NaN (filter ekf takes no absent measurements)
+operations per call of step (Python): add 144, sub 66, mul 220, div 8, sqrt 4, fma 0, neg 0, cmp 8, calls 0 (flops 442, instructions 450)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
-operations per call of update1 (Python): add 23, sub 14, mul 39, div 2, sqrt 1, fma 0, neg 0, cmp 1, calls 0 (flops 79, instructions 80)
+operations per call of update1 (Python): add 23, sub 14, mul 39, div 2, sqrt 1, fma 0, neg 0, cmp 2, calls 0 (flops 79, instructions 81)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
 per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
@@ -71,6 +73,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -281,6 +304,7 @@ def _step(x, P, z, u):
     t146 = t2 - t136
     t147 = P[11] - t137
     t148 = t3 - t138
+    _require_present((z[0], z[1], z[2], z[3],), ('D1 (z[0])', 'D2 (z[1])', 'D3 (z[2])', 'D4 (z[3])'), 'measurement is NaN (filter ekf takes no absent measurements)')
     x_new = [t125, t126, t127, t128]
     P_new = [
         t139, t140, t141, t142, t140, t143, t144, t145, t141, t144, t146, t147, t142, t145,
@@ -394,6 +418,7 @@ def _update1(x, P, z, u):
     t46 = P[10] - t36
     t47 = P[11] - t37
     t48 = P[15] - t38
+    _require_present((z[0],), ('one measurement (z[0])',), 'measurement is NaN (filter ekf takes no absent measurements)')
     x_new = [t25, t26, t27, t28]
     P_new = [t39, t40, t41, t42, t40, t43, t44, t45, t41, t44, t46, t47, t42, t45, t47, t48]
     innovation = [t20]
@@ -575,6 +600,8 @@ def run(zs, us, x0, P0):
             P_10 = t2 - (t100*t48 + t104*t92 + t108*t93 + t112*t94)
             P_11 = P_11 - (t100*t52 + t104*t95 + t108*t96 + t112*t97)
             P_15 = t3 - (t101*t52 + t105*t95 + t109*t96 + t113*t97)
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2 and z_3 == z_3):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 112}: " + _nan_named((z_0, z_1, z_2, z_3,), ('D1 (z[0])', 'D2 (z[1])', 'D3 (z[2])', 'D4 (z[3])'), 'measurement is NaN (filter ekf takes no absent measurements)'))
             keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
         table = np.frombuffer(rows).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
@@ -584,9 +611,12 @@ def run(zs, us, x0, P0):
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k], us[k])
-        for i in range(4):
-            xs[k, i] = x[i]
-        for i in range(16):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k], us[k])
+            for i in range(4):
+                xs[k, i] = x[i]
+            for i in range(16):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 4, 4) + track)

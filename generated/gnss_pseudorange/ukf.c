@@ -26,21 +26,23 @@
  *     step 6: Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 7: Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 8: Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive
- *     update1 9: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
- *     update1 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
- *     update1 11: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
- *     update1 12: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
- *     update1 13: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 130, mul 160, div 31, sqrt 32, fma 242, neg 0, cmp 8, calls 0 (flops 941, instructions 707)
+ *     step 9: measurement is NaN (filter ukf takes no absent measurements)
+ *     update1 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
+ *     update1 11: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
+ *     update1 12: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
+ *     update1 13: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
+ *     update1 14: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     update1 15: measurement is NaN (filter ukf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 130, mul 160, div 31, sqrt 32, fma 242, neg 0, cmp 12, calls 0 (flops 941, instructions 711)
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
- * operations per call of update1 (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 30, mul 44, div 10, sqrt 11, fma 45, neg 0, cmp 5, calls 0 (flops 209, instructions 169)
+ * operations per call of update1 (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 30, mul 44, div 10, sqrt 11, fma 45, neg 0, cmp 6, calls 0 (flops 209, instructions 170)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -1, n + lambda = 3; weights Wm0 = -1/3, Wc0 = -1/3, Wi = 1/6 (i = 1..8)
  * predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q
  * spreads: h in difference form, h(x + d_i) - h(x) derived node by node so that the large terms cancel before rounding; the sigma points x + d_i are never formed
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
- * derive-interface: {"functions":[["gnss_pseudorange_ukf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[4],false,false,false],["u",[12],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ukf_predict","predict",false,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ukf_update1","update1",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[1],false,false,false],["u",[3],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["innovation",[1],true,false,false],["variance",[1],true,false,false]]],["gnss_pseudorange_ukf_run","run",true,true,[["z",["steps",4],false,false,false,false,"zs"],["u",["steps",12],false,false,false,false,"us"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",6,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",7,"Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",8,"Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["update1",9,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["update1",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["update1",11,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["update1",12,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["update1",13,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["gnss_pseudorange_ukf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[4],false,false,false],["u",[12],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ukf_predict","predict",false,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ukf_update1","update1",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[1],false,false,false],["u",[3],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["innovation",[1],true,false,false],["variance",[1],true,false,false]]],["gnss_pseudorange_ukf_run","run",true,true,[["z",["steps",4],false,false,false,false,"zs"],["u",["steps",12],false,false,false,false,"us"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",6,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",7,"Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",8,"Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["step",9,"measurement is NaN (filter ukf takes no absent measurements)",[]],["update1",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["update1",11,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["update1",12,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["update1",13,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["update1",14,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["update1",15,"measurement is NaN (filter ukf takes no absent measurements)",[]]],"present":{"9":["z",["D1","D2","D3","D4"]],"15":["z",["one measurement"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -440,6 +442,9 @@ DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const
     const double t385 = t2 - t375;
     const double t386 = P[11 * s] - t376;
     const double t387 = t3 - t377;
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s]) & (z[3 * s] == z[3 * s])) && !status) {
+        status = 9; /* measurement is NaN (filter ukf takes no absent measurements) */
+    }
     x_new[0] = t364;
     x_new[1 * s] = t365;
     x_new[2 * s] = t366;
@@ -499,7 +504,7 @@ void gnss_pseudorange_ukf_predict(const double *restrict x, const double *restri
 int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new, double *restrict innovation, double *restrict variance)
 {
     if (!(P[0] > 0.0)) {
-        return 9; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
+        return 10; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     }
     const double t0 = sqrt(P[0]);
     const double t1 = 1.0/t0;
@@ -508,7 +513,7 @@ int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restric
     const double t4 = P[3]*t1;
     const double t5 = DERIVE_FNMA(t2, t2, P[5]);
     if (!(t5 > 0.0)) {
-        return 10; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
+        return 11; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     }
     const double t6 = sqrt(t5);
     const double t7 = 1.0/t6;
@@ -516,14 +521,14 @@ int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restric
     const double t9 = t7*DERIVE_FNMA(t2, t4, P[7]);
     const double t10 = DERIVE_FNMA(t8, t8, DERIVE_FNMA(t3, t3, P[10]));
     if (!(t10 > 0.0)) {
-        return 11; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
+        return 12; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     }
     const double t11 = sqrt(t10);
     const double t12 = 1.0/t11;
     const double t13 = t12*DERIVE_FNMA(t8, t9, DERIVE_FNMA(t3, t4, P[11]));
     const double t14 = DERIVE_FNMA(t9, t9, DERIVE_FNMA(t4, t4, DERIVE_FNMA(t13, t13, P[15])));
     if (!(t14 > 0.0)) {
-        return 12; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
+        return 13; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     }
     const double t15 = sqrt(t14);
     const double t16 = 1.7320508075688772*t0;
@@ -591,7 +596,7 @@ int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restric
     const double t88 = 0.16666666666666666*t84;
     const double t89 = 0.16666666666666666*t85;
     if (!(t77 > 0.0)) {
-        return 13; /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 14; /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t90 = 1.0/t77;
     const double t91 = t86*t90;
@@ -614,6 +619,9 @@ int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restric
     const double t122 = DERIVE_FNMA(t88, t93, P[10]);
     const double t123 = DERIVE_FNMA(t89, t93, P[11]);
     const double t124 = DERIVE_FNMA(t89, t94, P[15]);
+    if (!((z[0] == z[0]))) {
+        return 15; /* measurement is NaN (filter ukf takes no absent measurements) */
+    }
     x_new[0] = t101;
     x_new[1] = t102;
     x_new[2] = t103;

@@ -26,14 +26,16 @@ status (C return value; Python raises NumericalError): 0 success
     step 6: Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 7: Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 8: Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive
-    update1 9: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
-    update1 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
-    update1 11: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
-    update1 12: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
-    update1 13: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 268, sub 208, mul 402, div 31, sqrt 32, fma 0, neg 0, cmp 8, calls 0 (flops 941, instructions 949)
+    step 9: measurement is NaN (filter ukf takes no absent measurements)
+    update1 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
+    update1 11: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
+    update1 12: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
+    update1 13: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
+    update1 14: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    update1 15: measurement is NaN (filter ukf takes no absent measurements)
+operations per call of step (Python): add 268, sub 208, mul 402, div 31, sqrt 32, fma 0, neg 0, cmp 12, calls 0 (flops 941, instructions 953)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
-operations per call of update1 (Python): add 48, sub 51, mul 89, div 10, sqrt 11, fma 0, neg 0, cmp 5, calls 0 (flops 209, instructions 214)
+operations per call of update1 (Python): add 48, sub 51, mul 89, div 10, sqrt 11, fma 0, neg 0, cmp 6, calls 0 (flops 209, instructions 215)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 sigma points: alpha = 1, beta = 0, kappa = -1, n + lambda = 3; weights Wm0 = -1/3, Wc0 = -1/3, Wi = 1/6 (i = 1..8)
 predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q
@@ -81,6 +83,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -534,6 +557,7 @@ def _step(x, P, z, u):
     t385 = t2 - t375
     t386 = P[11] - t376
     t387 = t3 - t377
+    _require_present((z[0], z[1], z[2], z[3],), ('D1 (z[0])', 'D2 (z[1])', 'D3 (z[2])', 'D4 (z[3])'), 'measurement is NaN (filter ukf takes no absent measurements)')
     x_new = [t364, t365, t366, t367]
     P_new = [
         t378, t379, t380, t381, t379, t382, t383, t384, t380, t383, t385, t386, t381, t384,
@@ -727,6 +751,7 @@ def _update1(x, P, z, u):
     t122 = P[10] - t112
     t123 = P[11] - t113
     t124 = P[15] - t114
+    _require_present((z[0],), ('one measurement (z[0])',), 'measurement is NaN (filter ukf takes no absent measurements)')
     x_new = [t101, t102, t103, t104]
     P_new = [
         t115, t116, t117, t118, t116, t119, t120, t121, t117, t120, t122, t123, t118, t121,
@@ -1036,6 +1061,8 @@ def run(zs, us, x0, P0):
             P_10 = t2 - (t288*t348 + t289*t347 + t290*t346 + t291*t338)
             P_11 = P_11 - (t292*t348 + t293*t347 + t294*t346 + t295*t338)
             P_15 = t3 - (t292*t351 + t293*t350 + t294*t349 + t295*t339)
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2 and z_3 == z_3):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 112}: " + _nan_named((z_0, z_1, z_2, z_3,), ('D1 (z[0])', 'D2 (z[1])', 'D3 (z[2])', 'D4 (z[3])'), 'measurement is NaN (filter ukf takes no absent measurements)'))
             keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
         table = np.frombuffer(rows).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
@@ -1045,9 +1072,12 @@ def run(zs, us, x0, P0):
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k], us[k])
-        for i in range(4):
-            xs[k, i] = x[i]
-        for i in range(16):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k], us[k])
+            for i in range(4):
+                xs[k, i] = x[i]
+            for i in range(16):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 4, 4) + track)

@@ -17,8 +17,9 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 75, instructions 81)
+    step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 75, instructions 84)
 P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -84,6 +85,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -220,6 +242,7 @@ def _step_in_pattern(x, P, z):
     t72 = 0.5*t71
     t73 = t70 + t57
     t74 = 0.5*t73
+    _require_present((z[0], z[1], z[2],), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t22, t47, t72]
     P_new = [t24, 0.0, 0.0, 0.0, t49, 0.0, 0.0, 0.0, t74]
     return x_new, P_new
@@ -269,6 +292,8 @@ def run(zs, x0, P0):
                 t24 = 0.5*(0.00909090909090909 + 0.9090909090909091*(P_0*t11) + (t0 - t0*t2))
                 x_1 = 0.5*(0.09090909090909091*z_1 + t11*(x_1 + P_0*(9.090909090909092*z_1)) + (x_1 + t2*(z_1 - x_1)))
                 x_2 = 0.5*(0.09090909090909091*z_2 + t11*(x_2 + P_0*(9.090909090909092*z_2)) + (x_2 + t2*(z_2 - x_2)))
+                if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                    raise NumericalError(f"step {len(rows) // 40}: " + _nan_named((z_0, z_1, z_2,), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
                 keep(pack(x_0, x_1, x_2, t24, 0.0))
                 P_0 = t24
             table = np.frombuffer(rows).reshape(-1, 5)
@@ -304,6 +329,8 @@ def run(zs, x0, P0):
             t61 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_8))
             x_2 = 0.5*(0.09090909090909091*z_2 + t61*(x_2 + P_8*(9.090909090909092*z_2)) + (x_2 + t52*(z_2 - x_2)))
             P_8 = 0.5*(0.00909090909090909 + 0.9090909090909091*(P_8*t61) + (t50 - t50*t52))
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 56}: " + _nan_named((z_0, z_1, z_2,), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
         table = np.frombuffer(rows).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
@@ -312,9 +339,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step_in_pattern(x, P, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
-        for i in range(9):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step_in_pattern(x, P, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+            for i in range(9):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 3, 3) + track)

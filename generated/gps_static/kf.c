@@ -19,12 +19,13 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 6, calls 0 (flops 24, instructions 24)
+ *     step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 9, calls 0 (flops 24, instructions 27)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["gps_static_kf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_kf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_kf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_kf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]],"present":{"4":["z",["xi_x","xi_y","xi_z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -167,6 +168,9 @@ DERIVE_INLINE int gps_static_kf_step_body(const double *restrict x, const double
     const double t19 = z[2 * s] - x[2 * s];
     const double t21 = DERIVE_FMA(t18, t19, x[2 * s]);
     const double t23 = DERIVE_FNMA(t16, t18, t16);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t5;
     x_new[1 * s] = t13;
     x_new[2 * s] = t21;
@@ -185,13 +189,13 @@ DERIVE_INLINE int gps_static_kf_step_body(const double *restrict x, const double
 int gps_static_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
     if (!(P[1] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     return gps_static_kf_step_body(x, P, z, x_new, P_new, 1);
 }
@@ -201,13 +205,13 @@ int gps_static_kf_run(size_t steps, const double *z, const double *x0, const dou
 {
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[1] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
 #if DERIVE_VECTOR
     /* the identical blocks in the lanes of one vector (lane b: block b) */
@@ -232,6 +236,15 @@ int gps_static_kf_run(size_t steps, const double *z, const double *x0, const dou
         }
         if (!(a1[2] > 0.0) && !step_status) {
             step_status = 3;
+        }
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 4;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 4;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 4;
         }
         if (step_status) {
             return step_status;
@@ -321,13 +334,13 @@ int gps_static_kf_run_tracks(size_t steps, size_t tracks, const double *z, const
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 9 + 1] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 9 + 2] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 9 + 5] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
     }
     t = 0;

@@ -17,11 +17,12 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 6, calls 0 (flops 24, instructions 24)
+ *     step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 9, calls 0 (flops 24, instructions 27)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gps_static_kfp_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_kfp_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false],["x_preds",["steps",3],true,false,false],["P_preds",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_kfp_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_kfp_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false],["x_preds",["steps",3],true,false,false],["P_preds",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]],"present":{"4":["z",["xi_x","xi_y","xi_z"]]}}
  */
 #ifndef DERIVE_gps_static_kfp_H
 #define DERIVE_gps_static_kfp_H
@@ -54,7 +55,8 @@ enum gps_static_kfp_status {
     gps_static_kfp_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
     gps_static_kfp_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2,
     gps_static_kfp_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_3 = 3,
-    gps_static_kfp_STATUS_STEP_P_OUTSIDE_PATTERN_4 = 4
+    gps_static_kfp_STATUS_STEP_MEASUREMENT_NAN_4 = 4,
+    gps_static_kfp_STATUS_STEP_P_OUTSIDE_PATTERN_5 = 5
 };
 
 #ifdef __cplusplus

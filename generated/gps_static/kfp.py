@@ -17,8 +17,9 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 9, sub 6, mul 6, div 3, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 24, instructions 30)
+    step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 9, sub 6, mul 6, div 3, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 24, instructions 33)
 P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -81,6 +82,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -168,6 +190,7 @@ def _step_in_pattern(x, P, z):
     t21 = t0 - t18
     t22 = t1 - t19
     t23 = t2 - t20
+    _require_present((z[0], z[1], z[2],), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t15, t16, t17]
     P_new = [t21, 0.0, 0.0, 0.0, t22, 0.0, 0.0, 0.0, t23]
     x_pred = [x[0], x[1], x[2]]
@@ -207,13 +230,16 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])
     for k in range(steps):
-        x, P, x_pred, P_pred = _step_in_pattern(x, P, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
-        for i in range(9):
-            Ps[k, i] = P[i]
-        for i in range(3):
-            x_preds[k, i] = x_pred[i]
-        for i in range(9):
-            P_preds[k, i] = P_pred[i]
+        try:
+            x, P, x_pred, P_pred = _step_in_pattern(x, P, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+            for i in range(9):
+                Ps[k, i] = P[i]
+            for i in range(3):
+                x_preds[k, i] = x_pred[i]
+            for i in range(9):
+                P_preds[k, i] = P_pred[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 3, 3) + track), x_preds, P_preds.reshape((steps, 3, 3) + track)

@@ -16,12 +16,13 @@
  *     many tracks: gps_static_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
- *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 12, div 3, sqrt 0, fma 12, neg 0, cmp 3, calls 0 (flops 39, instructions 30)
+ *     step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 2: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 12, div 3, sqrt 0, fma 12, neg 0, cmp 6, calls 0 (flops 39, instructions 33)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["gps_static_lf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_lf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_lf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_lf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",2,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]],"present":{"1":["z",["xi_x","xi_y","xi_z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -134,8 +135,9 @@ __extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
 #endif
 #endif
 
-DERIVE_INLINE void gps_static_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+DERIVE_INLINE int gps_static_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
+    int status = 0;
     const double t1 = DERIVE_FMA(9.090909090909092, P[0], 1.0);
     const double t2 = 1.0/t1;
     const double t3 = 0.9090909090909091*t2;
@@ -157,6 +159,9 @@ DERIVE_INLINE void gps_static_lf_step_body(const double *restrict x, const doubl
     const double t32 = DERIVE_FMA(P[8 * s], t30, x[2 * s]);
     const double t35 = DERIVE_FMA(t29, t32, 0.09090909090909091*z[2 * s]);
     const double t38 = DERIVE_FMA(0.9090909090909091, P[8 * s]*t29, 0.00909090909090909);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t9;
     x_new[1 * s] = t22;
     x_new[2 * s] = t35;
@@ -169,21 +174,21 @@ DERIVE_INLINE void gps_static_lf_step_body(const double *restrict x, const doubl
     P_new[6 * s] = 0.0;
     P_new[7 * s] = 0.0;
     P_new[8 * s] = t38;
+    return status;
 }
 
 int gps_static_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
     if (!(P[1] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
-    gps_static_lf_step_body(x, P, z, x_new, P_new, 1);
-    return 0;
+    return gps_static_lf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
@@ -191,13 +196,13 @@ int gps_static_lf_run(size_t steps, const double *z, const double *x0, const dou
 {
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[1] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
 #if DERIVE_VECTOR
     /* the identical blocks in the lanes of one vector (lane b: block b) */
@@ -207,6 +212,7 @@ int gps_static_lf_run(size_t steps, const double *z, const double *x0, const dou
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
         const derive_vd a0 = DERIVE_VFMA(((derive_vd){9.090909090909092, 9.090909090909092, 9.090909090909092, 9.090909090909092}), P_v0, ((derive_vd){1.0, 1.0, 1.0, 1.0}));
         const derive_vd a1 = 1.0 / a0;
         const derive_vd a2 = 0.9090909090909091 * a1;
@@ -216,6 +222,18 @@ int gps_static_lf_run(size_t steps, const double *z, const double *x0, const dou
         const derive_vd a6 = DERIVE_VFMA(a2, a4, a5);
         const derive_vd a7 = P_v0 * a2;
         const derive_vd a8 = DERIVE_VFMA(((derive_vd){0.9090909090909091, 0.9090909090909091, 0.9090909090909091, 0.9090909090909091}), a7, ((derive_vd){0.00909090909090909, 0.00909090909090909, 0.00909090909090909, 0.00909090909090909}));
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 1;
+        }
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 3 + 0] = a6[0];
         xs[k * 3 + 1] = a6[1];
         xs[k * 3 + 2] = a6[2];
@@ -255,7 +273,10 @@ int gps_static_lf_run(size_t steps, const double *z, const double *x0, const dou
     /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        gps_static_lf_step_body(x, P, zk, x_new, P_new, 1);
+        const int step_status = gps_static_lf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
@@ -298,13 +319,13 @@ int gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 9 + 1] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 9 + 2] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 9 + 5] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
     }
     t = 0;
@@ -325,6 +346,7 @@ int gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const
         double *P_b = P_b_pair[0];
         double *P_new_b = P_b_pair[1];
         double z_b[3 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 3; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
@@ -360,7 +382,20 @@ int gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                gps_static_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+                status_b[j] = gps_static_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 3; ++i) {

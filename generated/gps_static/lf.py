@@ -14,8 +14,9 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     run(zs[steps, 3], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
-    step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 39, instructions 42)
+    step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 2: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 39, instructions 45)
 P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -38,6 +39,13 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
 
 try:
     from derive.errors import PatternError
@@ -65,6 +73,27 @@ def _require_zero(values, indices, n, name, message):
             value = float(value[value != 0][0])
             entry = f"{name}[{k // n}][{k % n}]"
             raise PatternError(f"{entry} = {value!r}: {message}")
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -110,6 +139,7 @@ def step(x, P, z):
     Returns:
         x_new [3]: x(k+1/k+1)
         P_new [(3, 3) array, symmetric, then any track axes]: P(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 3 entries).
     """
     if len(P) == 3:  # a 2-D (3, 3) P: flattened, row-major
@@ -161,6 +191,7 @@ def _step_in_pattern(x, P, z):
     t36 = P[8]*t29
     t37 = 0.9090909090909091*t36
     t38 = 0.00909090909090909 + t37
+    _require_present((z[0], z[1], z[2],), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t9, t22, t35]
     P_new = [t12, 0.0, 0.0, 0.0, t25, 0.0, 0.0, 0.0, t38]
     return x_new, P_new
@@ -205,6 +236,8 @@ def run(zs, x0, P0):
                 t12 = 0.00909090909090909 + 0.9090909090909091*(P_0*t3)
                 x_1 = 0.09090909090909091*z_1 + t3*(x_1 + P_0*(9.090909090909092*z_1))
                 x_2 = 0.09090909090909091*z_2 + t3*(x_2 + P_0*(9.090909090909092*z_2))
+                if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                    raise NumericalError(f"step {len(rows) // 40}: " + _nan_named((z_0, z_1, z_2,), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
                 keep(pack(x_0, x_1, x_2, t12, 0.0))
                 P_0 = t12
             table = np.frombuffer(rows).reshape(-1, 5)
@@ -225,6 +258,8 @@ def run(zs, x0, P0):
             t29 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_8))
             x_2 = 0.09090909090909091*z_2 + t29*(x_2 + P_8*(9.090909090909092*z_2))
             P_8 = 0.00909090909090909 + 0.9090909090909091*(P_8*t29)
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 56}: " + _nan_named((z_0, z_1, z_2,), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
         table = np.frombuffer(rows).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
@@ -233,9 +268,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step_in_pattern(x, P, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
-        for i in range(9):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step_in_pattern(x, P, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+            for i in range(9):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 3, 3) + track)

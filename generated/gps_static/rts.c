@@ -19,17 +19,18 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 6, calls 0 (flops 24, instructions 24)
+ *     step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     backward 6: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 7: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     backward 8: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     backward 9: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 9, calls 0 (flops 24, instructions 27)
  * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 6, mul 3, div 3, sqrt 0, fma 6, neg 0, cmp 12, calls 0 (flops 24, instructions 30)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 24 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["gps_static_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["gps_static_rts_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["backward",5,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",8,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,1,1,2,2,2,5,5,5]]]}
+ * derive-interface: {"functions":[["gps_static_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["gps_static_rts_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["backward",6,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",8,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",9,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,1,1,2,2,2,5,5,5]]],"present":{"4":["z",["xi_x","xi_y","xi_z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -96,6 +97,9 @@ DERIVE_INLINE int gps_static_rts_step_body(const double *restrict x, const doubl
     const double t21 = DERIVE_FNMA(t0, t6, t0);
     const double t22 = DERIVE_FNMA(t1, t7, t1);
     const double t23 = DERIVE_FNMA(t2, t8, t2);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t15;
     x_new[1 * s] = t16;
     x_new[2 * s] = t17;
@@ -126,13 +130,13 @@ DERIVE_INLINE int gps_static_rts_step_body(const double *restrict x, const doubl
 int gps_static_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
 {
     if (!(P[1] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     return gps_static_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
@@ -140,40 +144,40 @@ int gps_static_rts_step(const double *restrict x, const double *restrict P, cons
 int gps_static_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)
 {
     if (!(P[1] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P[2] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_pred[1] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_pred[2] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_pred[5] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_smooth_next[1] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_smooth_next[2] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_smooth_next[5] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_pred[0] > 0.0)) {
-        return 5; /* P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 6; /* P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     if (!(P_pred[4] > 0.0)) {
-        return 6; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        return 7; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     if (!(P_pred[8] > 0.0)) {
-        return 7; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        return 8; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t0 = P[0]/P_pred[0];
     const double t1 = P[4]/P_pred[4];

@@ -19,17 +19,18 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 6, calls 0 (flops 24, instructions 24)
+ *     step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     backward 6: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 7: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     backward 8: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     backward 9: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 9, calls 0 (flops 24, instructions 27)
  * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 6, mul 3, div 3, sqrt 0, fma 6, neg 0, cmp 12, calls 0 (flops 24, instructions 30)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 24 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["gps_static_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["gps_static_rts_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["backward",5,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",8,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,1,1,2,2,2,5,5,5]]]}
+ * derive-interface: {"functions":[["gps_static_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["gps_static_rts_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["backward",6,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",8,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",9,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,1,1,2,2,2,5,5,5]]],"present":{"4":["z",["xi_x","xi_y","xi_z"]]}}
  */
 #ifndef DERIVE_gps_static_rts_H
 #define DERIVE_gps_static_rts_H
@@ -62,11 +63,12 @@ enum gps_static_rts_status {
     gps_static_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
     gps_static_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2,
     gps_static_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_3 = 3,
-    gps_static_rts_STATUS_STEP_P_OUTSIDE_PATTERN_4 = 4,
-    gps_static_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_5 = 5,
+    gps_static_rts_STATUS_STEP_MEASUREMENT_NAN_4 = 4,
+    gps_static_rts_STATUS_STEP_P_OUTSIDE_PATTERN_5 = 5,
     gps_static_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_6 = 6,
     gps_static_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_7 = 7,
-    gps_static_rts_STATUS_BACKWARD_P_SMOOTH_NEXT_OUTSIDE_PATTERN_8 = 8
+    gps_static_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_8 = 8,
+    gps_static_rts_STATUS_BACKWARD_P_SMOOTH_NEXT_OUTSIDE_PATTERN_9 = 9
 };
 
 #ifdef __cplusplus

@@ -12,7 +12,9 @@ parameters: none
 interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(x[3], z[3]) -> (x_new[3])
     run(zs[steps, 3], x0[3]) -> (xs[steps, 3])
-operations per call of step (Python): add 3, sub 0, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 9, instructions 9)
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (filter sskf takes no absent measurements)
+operations per call of step (Python): add 3, sub 0, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 9, instructions 12)
 A = [[0.7298437881283576, 0.                , 0.                ], [0.                , 0.7298437881283576, 0.                ], [0.                , 0.                , 0.7298437881283576]]
 B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
 """
@@ -35,6 +37,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -70,10 +100,12 @@ def step(x, z):
         z [3]: z(k+1)
     Returns:
         x_new [3]: x(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     """
     t0 = 0.7298437881283576*x[0] + 0.2701562118716424*z[0]
     t1 = 0.7298437881283576*x[1] + 0.2701562118716424*z[1]
     t2 = 0.7298437881283576*x[2] + 0.2701562118716424*z[2]
+    _require_present((z[0], z[1], z[2],), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (filter sskf takes no absent measurements)')
     x_new = [t0, t1, t2]
     return x_new
 
@@ -104,13 +136,18 @@ def run(zs, x0):
             x_0 = 0.7298437881283576*x_0 + 0.2701562118716424*z_0
             x_1 = 0.7298437881283576*x_1 + 0.2701562118716424*z_1
             x_2 = 0.7298437881283576*x_2 + 0.2701562118716424*z_2
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 24}: " + _nan_named((z_0, z_1, z_2,), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (filter sskf takes no absent measurements)'))
             keep(pack(x_0, x_1, x_2))
         table = np.frombuffer(rows).reshape(-1, 3)
         return table[:, [0, 1, 2]]
     xs = np.empty((steps, 3) + track)
     x = x0
     for k in range(steps):
-        x = step(x, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
+        try:
+            x = step(x, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs

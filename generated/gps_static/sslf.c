@@ -10,17 +10,19 @@
  * m: 3 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gps_static_sslf_step(x[3], z[3], x_new[3] out)
- *     void gps_static_sslf_run(steps, z[steps*3], x0[3], xs[steps*3] out)
- *     void gps_static_sslf_run_tracks(steps, tracks, z[steps*3], x0[3], xs[steps*3] out)
+ *     int gps_static_sslf_step(x[3], z[3], x_new[3] out)
+ *     int gps_static_sslf_run(steps, z[steps*3], x0[3], xs[steps*3] out)
+ *     int gps_static_sslf_run_tracks(steps, tracks, z[steps*3], x0[3], xs[steps*3] out)
  *     many tracks: gps_static_sslf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 0, calls 0 (flops 9, instructions 6)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter sslf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 3, calls 0 (flops 9, instructions 9)
  * A = [[0.7298437881283575, 0.                , 0.                ], [0.                , 0.7298437881283575, 0.                ], [0.                , 0.                , 0.7298437881283575]]
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 24, instructions 15)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 9, neg 0, cmp 6, calls 0 (flops 24, instructions 21)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["gps_static_sslf_step","step",false,false,[["x",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_sslf_run","run",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["gps_static_sslf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["gps_static_sslf_step","step",true,false,[["x",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_sslf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["gps_static_sslf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sslf takes no absent measurements)",[]]],"present":{"1":["z",["xi_x","xi_y","xi_z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -133,33 +135,43 @@ __extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
 #endif
 #endif
 
-DERIVE_INLINE void gps_static_sslf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int gps_static_sslf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.7298437881283575, x[0], 0.2701562118716424*z[0]);
     const double t1 = DERIVE_FMA(0.7298437881283575, x[1 * s], 0.2701562118716424*z[1 * s]);
     const double t2 = DERIVE_FMA(0.7298437881283575, x[2 * s], 0.2701562118716424*z[2 * s]);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
+    return status;
 }
 
-DERIVE_INLINE void gps_static_sslf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int gps_static_sslf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.5326719550695508, x[0], DERIVE_FMA(0.2701562118716424, zn[0], 0.19717183305880664*z[0]));
     const double t1 = DERIVE_FMA(0.5326719550695508, x[1 * s], DERIVE_FMA(0.2701562118716424, zn[1 * s], 0.19717183305880664*z[1 * s]));
     const double t2 = DERIVE_FMA(0.5326719550695508, x[2 * s], DERIVE_FMA(0.2701562118716424, zn[2 * s], 0.19717183305880664*z[2 * s]));
+    if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])) && !status) {
+        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
+    return status;
 }
 
-void gps_static_sslf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int gps_static_sslf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    gps_static_sslf_step_body(x, z, x_new, 1);
+    return gps_static_sslf_step_body(x, z, x_new, 1);
 }
 
 /* Run the steady-state Lainiotis filter over steps steps. */
-void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double *xs)
+int gps_static_sslf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
 #if DERIVE_VECTOR
     (void)gps_static_sslf_pass_body;
@@ -170,12 +182,38 @@ void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
         const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
         const derive_vd a0 = 0.2701562118716424 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.7298437881283575, 0.7298437881283575, 0.7298437881283575, 0.7298437881283575}), x_v0, a0);
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 1;
+        }
+        if (step_status) {
+            return step_status;
+        }
         const derive_vd bzn0 = {znk[0], znk[1], znk[2], znk[0]};
+        int pass_status = 0;
         const derive_vd b0 = 0.19717183305880664 * az0;
         const derive_vd b1 = DERIVE_VFMA(((derive_vd){0.2701562118716424, 0.2701562118716424, 0.2701562118716424, 0.2701562118716424}), bzn0, b0);
         const derive_vd b2 = DERIVE_VFMA(((derive_vd){0.5326719550695508, 0.5326719550695508, 0.5326719550695508, 0.5326719550695508}), x_v0, b1);
+        if (!(bzn0[0] == bzn0[0]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (!(bzn0[1] == bzn0[1]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (!(bzn0[2] == bzn0[2]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 3 + 0] = a1[0];
         xs[k * 3 + 1] = a1[1];
         xs[k * 3 + 2] = a1[2];
@@ -187,13 +225,27 @@ void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
         const derive_vd a0 = 0.2701562118716424 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.7298437881283575, 0.7298437881283575, 0.7298437881283575, 0.7298437881283575}), x_v0, a0);
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 1;
+        }
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 3 + 0] = a1[0];
         xs[k * 3 + 1] = a1[1];
         xs[k * 3 + 2] = a1[2];
         x_v0 = a1;
     }
+    return 0;
 #else
     double x[3];
     double x_new[3];
@@ -207,8 +259,14 @@ void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
-        gps_static_sslf_step_body(x, zk, x_mid, 1);
-        gps_static_sslf_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = gps_static_sslf_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = gps_static_sslf_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 3 + 0] = x_mid[0];
         xs[k * 3 + 1] = x_mid[1];
         xs[k * 3 + 2] = x_mid[2];
@@ -219,11 +277,15 @@ void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        gps_static_sslf_step_body(x, zk, x_new, 1);
+        const int step_status = gps_static_sslf_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
     }
+    return 0;
 #endif
 }
 
@@ -234,7 +296,7 @@ void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double
  * over the lanes in one loop the compiler vectorises, each lane the operations of its own
  * run in the same order; the last tracks, fewer than a block, by run itself.
  * A non-zero status stops the whole run. */
-void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
+int gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
 {
     size_t t = 0;
     size_t k, i, j;
@@ -253,6 +315,7 @@ void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, co
         double z_b[3 * DERIVE_LANES];
         double x_mid_b[3 * DERIVE_LANES];
         double zn_b[3 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 3; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
@@ -283,8 +346,22 @@ void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, co
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                gps_static_sslf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
-                gps_static_sslf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                const int step_status = gps_static_sslf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
+                const int pass_status = gps_static_sslf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = step_status ? step_status : pass_status;
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 3; ++i) {
@@ -322,7 +399,20 @@ void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, co
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                gps_static_sslf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = gps_static_sslf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 3; ++i) {
@@ -338,6 +428,10 @@ void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, co
     }
     /* the last tracks, fewer than a block: run on each */
     for (; t < tracks; ++t) {
-        gps_static_sslf_run(steps, z + t * steps * 3, x0 + t * 3, xs + t * steps * 3);
+        const int track_status = gps_static_sslf_run(steps, z + t * steps * 3, x0 + t * 3, xs + t * steps * 3);
+        if (track_status) {
+            return track_status;
+        }
     }
+    return 0;
 }

@@ -23,19 +23,20 @@
  *     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
  *     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
- *     step 7: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 11: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     store 12: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 9, sub 3, mul 9, div 3, sqrt 0, fma 3, neg 0, cmp 9, calls 0 (flops 30, instructions 36)
+ *     step 7: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 8: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     enter 9: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 10: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 11: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 12: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     store 13: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 9, sub 3, mul 9, div 3, sqrt 0, fma 3, neg 0, cmp 12, calls 0 (flops 30, instructions 39)
  * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 3, instructions 9)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 0, instructions 3)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["gps_static_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["gps_static_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["gps_static_udkf_store","store",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["gps_static_udkf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",7,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["enter",8,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",10,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",11,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["store",12,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["gps_static_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["gps_static_udkf_store","store",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["gps_static_udkf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",7,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",8,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["enter",9,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",10,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",11,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",12,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["store",13,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]],"present":{"7":["z",["xi_x","xi_y","xi_z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -121,6 +122,9 @@ DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const doub
     const double t24 = z[2 * s] - x[2 * s];
     const double t25 = t21*t24;
     const double t26 = DERIVE_FMA(t0, t25, x[2 * s]);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 7; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t12;
     x_new[1 * s] = t19;
     x_new[2 * s] = t26;
@@ -142,13 +146,13 @@ DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const doub
 int gps_static_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
 {
     if (!(U[1] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(U[2] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(U[5] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     return gps_static_udkf_step_body(x, U, D, z, x_new, U_new, D_new, 1);
 }
@@ -156,25 +160,25 @@ int gps_static_udkf_step(const double *restrict x, const double *restrict U, con
 int gps_static_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[1] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P0[2] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[8];
     if (!(t0 > 0.0)) {
-        return 8; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 9; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
     const double t1 = 2.2250738585072014e-308 + P0[4];
     if (!(t1 > 0.0)) {
-        return 9; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 10; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t2 = 2.2250738585072014e-308 + P0[0];
     if (!(t2 > 0.0)) {
-        return 10; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 11; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -198,13 +202,13 @@ int gps_static_udkf_store(const double *restrict x, const double *restrict U, co
 {
     (void)x;
     if (!(U[1] == 0.0)) {
-        return 12; /* outside P's pattern */
+        return 13; /* outside P's pattern */
     }
     if (!(U[2] == 0.0)) {
-        return 12; /* outside P's pattern */
+        return 13; /* outside P's pattern */
     }
     if (!(U[5] == 0.0)) {
-        return 12; /* outside P's pattern */
+        return 13; /* outside P's pattern */
     }
     P_new[0] = D[0];
     P_new[1] = 0.0;

@@ -23,13 +23,14 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
-    step 7: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-    enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 11: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-    store 12: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 12, sub 3, mul 12, div 3, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 30, instructions 39)
+    step 7: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 8: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+    enter 9: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 10: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 11: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 12: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+    store 13: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 12, sub 3, mul 12, div 3, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 30, instructions 42)
 operations per call of enter (Python): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 3, instructions 9)
 operations per call of store (Python): add 0, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 0, instructions 3)
 P0 pattern declared: diagonal
@@ -95,6 +96,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -188,6 +210,7 @@ def _step_in_pattern(x, U, D, z):
     t24 = z[2] - x[2]
     t25 = t21*t24
     t26 = x[2] + t0*t25
+    _require_present((z[0], z[1], z[2],), ('xi_x (z[0])', 'xi_y (z[1])', 'xi_z (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t12, t19, t26]
     U_new = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
     D_new = [t9, t16, t23]
@@ -280,10 +303,13 @@ def run(zs, x0, P0):
     Ps = np.empty((steps, 9) + track)
     x, U, D = _enter(x0, P0.reshape((9,) + P0.shape[2:]))
     for k in range(steps):
-        x, U, D = _step_in_pattern(x, U, D, zs[k])
-        for i in range(3):
-            xs[k, i] = x[i]
-        Ps_k = _store(x, U, D)
-        for i in range(9):
-            Ps[k, i] = Ps_k[i]
+        try:
+            x, U, D = _step_in_pattern(x, U, D, zs[k])
+            for i in range(3):
+                xs[k, i] = x[i]
+            Ps_k = _store(x, U, D)
+            for i in range(9):
+                Ps[k, i] = Ps_k[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 3, 3) + track)

@@ -18,11 +18,12 @@
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 48, sub 2, mul 60, div 8, sqrt 0, fma 56, neg 0, cmp 6, calls 0 (flops 230, instructions 180)
+ *     step 3: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 48, sub 2, mul 60, div 8, sqrt 0, fma 56, neg 0, cmp 8, calls 0 (flops 230, instructions 182)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]],"present":{"3":["z",["zx","zy"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -240,6 +241,9 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t147 = 0.5*t144;
     const double t148 = 0.5*t145;
     const double t149 = 0.5*t146;
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
+        status = 3; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t67;
     x_new[1 * s] = t68;
     x_new[2 * s] = t142;
@@ -266,16 +270,16 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
 int gsm2d_a_jklf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
     if (!(P[2] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[6] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[7] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     return gsm2d_a_jklf_step_body(x, P, z, x_new, P_new, 1);
 }
@@ -290,16 +294,16 @@ int gsm2d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
     size_t k;
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P0[6] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P0[7] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -384,16 +388,16 @@ int gsm2d_a_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const 
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 16 + 2] == 0.0)) {
-            return 3; /* outside P's pattern */
+            return 4; /* outside P's pattern */
         }
         if (!(P0[t * 16 + 3] == 0.0)) {
-            return 3; /* outside P's pattern */
+            return 4; /* outside P's pattern */
         }
         if (!(P0[t * 16 + 6] == 0.0)) {
-            return 3; /* outside P's pattern */
+            return 4; /* outside P's pattern */
         }
         if (!(P0[t * 16 + 7] == 0.0)) {
-            return 3; /* outside P's pattern */
+            return 4; /* outside P's pattern */
         }
     }
     t = 0;

@@ -18,11 +18,12 @@
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 48, sub 2, mul 60, div 8, sqrt 0, fma 56, neg 0, cmp 6, calls 0 (flops 230, instructions 180)
+ *     step 3: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 48, sub 2, mul 60, div 8, sqrt 0, fma 56, neg 0, cmp 8, calls 0 (flops 230, instructions 182)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]],"present":{"3":["z",["zx","zy"]]}}
  */
 #ifndef DERIVE_gsm2d_a_jklf_H
 #define DERIVE_gsm2d_a_jklf_H
@@ -54,7 +55,8 @@ enum gsm2d_a_jklf_status {
     gsm2d_a_jklf_STATUS_OK = 0,
     gsm2d_a_jklf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
     gsm2d_a_jklf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2,
-    gsm2d_a_jklf_STATUS_STEP_P_OUTSIDE_PATTERN_3 = 3
+    gsm2d_a_jklf_STATUS_STEP_MEASUREMENT_NAN_3 = 3,
+    gsm2d_a_jklf_STATUS_STEP_P_OUTSIDE_PATTERN_4 = 4
 };
 
 #ifdef __cplusplus

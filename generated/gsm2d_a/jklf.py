@@ -16,8 +16,9 @@ symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 82, sub 24, mul 116, div 8, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 230, instructions 236)
+    step 3: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 82, sub 24, mul 116, div 8, sqrt 0, fma 0, neg 0, cmp 8, calls 0 (flops 230, instructions 238)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -83,6 +84,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -293,6 +315,7 @@ def _step_in_pattern(x, P, z):
     t147 = 0.5*t144
     t148 = 0.5*t145
     t149 = 0.5*t146
+    _require_present((z[0], z[1],), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t67, t68, t142, t143]
     P_new = [t72, t73, 0.0, 0.0, t73, t74, 0.0, 0.0, 0.0, 0.0, t147, t148, 0.0, 0.0, t148, t149]
     return x_new, P_new
@@ -376,6 +399,8 @@ def run(zs, x0, P0):
                 t123 = x_3 + (P_1*t118 + P_5*t119)
                 x_2 = 0.5*(t75 + t11*t89 + (0.061224489795918366*z_1 + (t39*t122 + t40*t123)))
                 x_3 = 0.5*(x_3 + t12*t89 + (0.12244897959183673*z_1 + (t42*t123 - t41*t122)))
+                if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                    raise NumericalError(f"step {len(rows) // 64}: " + _nan_named((z_0, z_1,), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
                 keep(pack(x_0, x_1, x_2, x_3, t72, t73, 0.0, t74))
                 P_0 = t72
                 P_1 = t73
@@ -462,6 +487,8 @@ def run(zs, x0, P0):
             t147 = 0.5*(t79 - t86*t82 + (0.0020408163265306124 + (0.9387755102040817*t130 + 0.8775510204081632*t131)))
             t148 = 0.5*(t80 - t86*t83 + (0.004081632653061225 + (0.7551020408163265*t131 - 0.12244897959183673*t130)))
             P_15 = 0.5*(t81 - t87*t83 + (0.00816326530612245 + (0.7551020408163265*(P_15*t117 - P_11*t116) - 0.12244897959183673*(P_11*t117 - P_10*t116))))
+            if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 88}: " + _nan_named((z_0, z_1,), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, x_3, t72, t73, 0.0, P_5, t147, t148, P_15))
             P_0 = t72
             P_1 = t73
@@ -475,9 +502,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step_in_pattern(x, P, zs[k])
-        for i in range(4):
-            xs[k, i] = x[i]
-        for i in range(16):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step_in_pattern(x, P, zs[k])
+            for i in range(4):
+                xs[k, i] = x[i]
+            for i in range(16):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 4, 4) + track)

@@ -10,16 +10,18 @@
  * m: 2 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gsm2d_a_jssklf_step(x[4], z[2], x_new[4] out)
- *     void gsm2d_a_jssklf_run(steps, z[steps*2], x0[4], xs[steps*4] out)
- *     void gsm2d_a_jssklf_run_tracks(steps, tracks, z[steps*2], x0[4], xs[steps*4] out)
+ *     int gsm2d_a_jssklf_step(x[4], z[2], x_new[4] out)
+ *     int gsm2d_a_jssklf_run(steps, z[steps*2], x0[4], xs[steps*4] out)
+ *     int gsm2d_a_jssklf_run_tracks(steps, tracks, z[steps*2], x0[4], xs[steps*4] out)
  *     many tracks: gsm2d_a_jssklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 8, neg 0, cmp 0, calls 0 (flops 20, instructions 12)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter jssklf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 8, neg 0, cmp 2, calls 0 (flops 20, instructions 14)
  * A: (4, 4) constants baked into the code
  * B = [[0.36535881073846804, 0.                 ], [0.20683480863417478, 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.20683480863417478]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 0, calls 0 (flops 48, instructions 28)
- * derive-interface: {"functions":[["gsm2d_a_jssklf_step","step",false,false,[["x",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_jssklf_run","run",false,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]],["gsm2d_a_jssklf_run_tracks","run_tracks",false,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 4, calls 0 (flops 48, instructions 32)
+ * derive-interface: {"functions":[["gsm2d_a_jssklf_step","step",true,false,[["x",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_jssklf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]],["gsm2d_a_jssklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter jssklf takes no absent measurements)",[]]],"present":{"1":["z",["zx","zy"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -92,37 +94,47 @@
 #endif
 #endif
 
-DERIVE_INLINE void gsm2d_a_jssklf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int gsm2d_a_jssklf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.2692823785230639, x[1 * s], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*z[0]));
     const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.20683480863417478), x[0], 0.20683480863417478*z[0]));
     const double t2 = DERIVE_FMA(0.2692823785230639, x[3 * s], DERIVE_FMA(0.634641189261532, x[2 * s], 0.36535881073846804*z[1 * s]));
     const double t3 = DERIVE_FMA(0.5863303827316504, x[3 * s], DERIVE_FMA((-0.20683480863417478), x[2 * s], 0.20683480863417478*z[1 * s]));
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
+        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
     x_new[3 * s] = t3;
+    return status;
 }
 
-DERIVE_INLINE void gsm2d_a_jssklf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int gsm2d_a_jssklf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.3287861290153685, x[1 * s], DERIVE_FMA(0.34707246987691837, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.2875687193846137*z[0])));
     const double t1 = DERIVE_FMA(0.28808634848387027, x[1 * s], DERIVE_FMA((-0.2525394214409774), x[0], DERIVE_FMA(0.20683480863417478, zn[0], 0.045704612806802644*z[0])));
     const double t2 = DERIVE_FMA(0.3287861290153685, x[3 * s], DERIVE_FMA(0.34707246987691837, x[2 * s], DERIVE_FMA(0.36535881073846804, zn[1 * s], 0.2875687193846137*z[1 * s])));
     const double t3 = DERIVE_FMA(0.28808634848387027, x[3 * s], DERIVE_FMA((-0.2525394214409774), x[2 * s], DERIVE_FMA(0.20683480863417478, zn[1 * s], 0.045704612806802644*z[1 * s])));
+    if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s])) && !status) {
+        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
     x_new[3 * s] = t3;
+    return status;
 }
 
-void gsm2d_a_jssklf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int gsm2d_a_jssklf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    gsm2d_a_jssklf_step_body(x, z, x_new, 1);
+    return gsm2d_a_jssklf_step_body(x, z, x_new, 1);
 }
 
 /* Run the joint steady-state Kalman-Lainiotis filter over steps steps. */
-void gsm2d_a_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
+int gsm2d_a_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
     double x[4];
     double x_new[4];
@@ -137,8 +149,14 @@ void gsm2d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 2;
         const double *restrict znk = z + (k + 1) * 2;
-        gsm2d_a_jssklf_step_body(x, zk, x_mid, 1);
-        gsm2d_a_jssklf_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = gsm2d_a_jssklf_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = gsm2d_a_jssklf_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 4 + 0] = x_mid[0];
         xs[k * 4 + 1] = x_mid[1];
         xs[k * 4 + 2] = x_mid[2];
@@ -151,12 +169,16 @@ void gsm2d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 2;
-        gsm2d_a_jssklf_step_body(x, zk, x_new, 1);
+        const int step_status = gsm2d_a_jssklf_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 4 + 0] = x[0] = x_new[0];
         xs[k * 4 + 1] = x[1] = x_new[1];
         xs[k * 4 + 2] = x[2] = x_new[2];
         xs[k * 4 + 3] = x[3] = x_new[3];
     }
+    return 0;
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
@@ -166,7 +188,7 @@ void gsm2d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
  * over the lanes in one loop the compiler vectorises, each lane the operations of its own
  * run in the same order; the last tracks, fewer than a block, by run itself.
  * A non-zero status stops the whole run. */
-void gsm2d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
+int gsm2d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
 {
     size_t t = 0;
     size_t k, i, j;
@@ -185,6 +207,7 @@ void gsm2d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
         double z_b[2 * DERIVE_LANES];
         double x_mid_b[4 * DERIVE_LANES];
         double zn_b[2 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 4; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 4 + i];
@@ -215,8 +238,22 @@ void gsm2d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                gsm2d_a_jssklf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
-                gsm2d_a_jssklf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                const int step_status = gsm2d_a_jssklf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
+                const int pass_status = gsm2d_a_jssklf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = step_status ? step_status : pass_status;
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 4; ++i) {
@@ -254,7 +291,20 @@ void gsm2d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                gsm2d_a_jssklf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = gsm2d_a_jssklf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 4; ++i) {
@@ -270,6 +320,10 @@ void gsm2d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
     }
     /* the last tracks, fewer than a block: run on each */
     for (; t < tracks; ++t) {
-        gsm2d_a_jssklf_run(steps, z + t * steps * 2, x0 + t * 4, xs + t * steps * 4);
+        const int track_status = gsm2d_a_jssklf_run(steps, z + t * steps * 2, x0 + t * 4, xs + t * steps * 4);
+        if (track_status) {
+            return track_status;
+        }
     }
+    return 0;
 }

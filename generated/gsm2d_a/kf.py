@@ -16,8 +16,9 @@ symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
+    step 3: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 8, calls 0 (flops 50, instructions 58)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -83,6 +84,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -193,6 +215,7 @@ def _step_in_pattern(x, P, z):
     t47 = t29 - t44
     t48 = t30 - t45
     t49 = t31 - t46
+    _require_present((z[0], z[1],), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t17, t18, t42, t43]
     P_new = [t22, t23, 0.0, 0.0, t23, t24, 0.0, 0.0, 0.0, 0.0, t47, t48, 0.0, 0.0, t48, t49]
     return x_new, P_new
@@ -254,6 +277,8 @@ def run(zs, x0, P0):
                 t39 = z_1 - (x_3 + t25)
                 x_2 = t25 + t11*t39
                 x_3 = x_3 + t12*t39
+                if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                    raise NumericalError(f"step {len(rows) // 64}: " + _nan_named((z_0, z_1,), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
                 keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5))
             table = np.frombuffer(rows).reshape(-1, 8)
             return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 4, 5, 6, 6, 5,
@@ -301,6 +326,8 @@ def run(zs, x0, P0):
             P_10 = t29 - t36*t32
             P_11 = t30 - t36*t33
             P_15 = t31 - t37*t33
+            if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 88}: " + _nan_named((z_0, z_1,), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5, P_10, P_11, P_15))
         table = np.frombuffer(rows).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
@@ -310,9 +337,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step_in_pattern(x, P, zs[k])
-        for i in range(4):
-            xs[k, i] = x[i]
-        for i in range(16):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step_in_pattern(x, P, zs[k])
+            for i in range(4):
+                xs[k, i] = x[i]
+            for i in range(16):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 4, 4) + track)

@@ -16,11 +16,12 @@
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 6, calls 0 (flops 50, instructions 46)
+ *     step 3: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 8, calls 0 (flops 50, instructions 48)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gsm2d_a_kfp_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["x_pred",[4],true,false,false],["P_pred",[4,4],true,false,false]]],["gsm2d_a_kfp_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false],["x_preds",["steps",4],true,false,false],["P_preds",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_kfp_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["x_pred",[4],true,false,false],["P_pred",[4,4],true,false,false]]],["gsm2d_a_kfp_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false],["x_preds",["steps",4],true,false,false],["P_preds",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]],"present":{"3":["z",["zx","zy"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -106,6 +107,9 @@ DERIVE_INLINE int gsm2d_a_kfp_step_body(const double *restrict x, const double *
     const double t47 = DERIVE_FNMA(t16, t24, t11);
     const double t48 = DERIVE_FNMA(t17, t24, t12);
     const double t49 = DERIVE_FNMA(t17, t25, t13);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
+        status = 3; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t34;
     x_new[1 * s] = t35;
     x_new[2 * s] = t36;
@@ -152,16 +156,16 @@ DERIVE_INLINE int gsm2d_a_kfp_step_body(const double *restrict x, const double *
 int gsm2d_a_kfp_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
 {
     if (!(P[2] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[6] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[7] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     return gsm2d_a_kfp_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
@@ -178,16 +182,16 @@ int gsm2d_a_kfp_run(size_t steps, const double *z, const double *x0, const doubl
     size_t k;
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P0[6] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P0[7] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     x[0] = x0[0];
     x[1] = x0[1];

@@ -16,8 +16,9 @@ symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: writt
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
+    step 3: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 8, calls 0 (flops 50, instructions 58)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -80,6 +81,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -192,6 +214,7 @@ def _step_in_pattern(x, P, z):
     t47 = t11 - t41
     t48 = t12 - t42
     t49 = t13 - t43
+    _require_present((z[0], z[1],), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t34, t35, t36, t37]
     P_new = [t44, t45, 0.0, 0.0, t45, t46, 0.0, 0.0, 0.0, 0.0, t47, t48, 0.0, 0.0, t48, t49]
     x_pred = [t0, x[1], t1, x[3]]
@@ -231,13 +254,16 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])
     for k in range(steps):
-        x, P, x_pred, P_pred = _step_in_pattern(x, P, zs[k])
-        for i in range(4):
-            xs[k, i] = x[i]
-        for i in range(16):
-            Ps[k, i] = P[i]
-        for i in range(4):
-            x_preds[k, i] = x_pred[i]
-        for i in range(16):
-            P_preds[k, i] = P_pred[i]
+        try:
+            x, P, x_pred, P_pred = _step_in_pattern(x, P, zs[k])
+            for i in range(4):
+                xs[k, i] = x[i]
+            for i in range(16):
+                Ps[k, i] = P[i]
+            for i in range(4):
+                x_preds[k, i] = x_pred[i]
+            for i in range(16):
+                P_preds[k, i] = P_pred[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 4, 4) + track), x_preds, P_preds.reshape((steps, 4, 4) + track)

@@ -16,11 +16,12 @@
  *     many tracks: gsm2d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
- *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 0, mul 50, div 4, sqrt 0, fma 46, neg 0, cmp 4, calls 0 (flops 160, instructions 118)
+ *     step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 2: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 0, mul 50, div 4, sqrt 0, fma 46, neg 0, cmp 6, calls 0 (flops 160, instructions 120)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gsm2d_a_lf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_lf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_lf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_lf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",2,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]],"present":{"1":["z",["zx","zy"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -93,8 +94,9 @@
 #endif
 #endif
 
-DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+DERIVE_INLINE int gsm2d_a_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
+    int status = 0;
     const double t0 = 16.3265306122449*P[1 * s];
     const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
     const double t2 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
@@ -171,6 +173,9 @@ DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *
     const double t77 = 0.0020408163265306124 + t74;
     const double t78 = 0.004081632653061225 + t75;
     const double t79 = 0.00816326530612245 + t76;
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
+        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t28;
     x_new[1 * s] = t29;
     x_new[2 * s] = t68;
@@ -191,24 +196,24 @@ DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *
     P_new[13 * s] = 0.0;
     P_new[14 * s] = t78;
     P_new[15 * s] = t79;
+    return status;
 }
 
 int gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
     if (!(P[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[6] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[7] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
-    gsm2d_a_lf_step_body(x, P, z, x_new, P_new, 1);
-    return 0;
+    return gsm2d_a_lf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
@@ -221,16 +226,16 @@ int gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double
     size_t k;
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[6] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[7] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -255,7 +260,10 @@ int gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double
     /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 2;
-        gsm2d_a_lf_step_body(x, P, zk, x_new, P_new, 1);
+        const int step_status = gsm2d_a_lf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 4 + 0] = x[0] = x_new[0];
         xs[k * 4 + 1] = x[1] = x_new[1];
         xs[k * 4 + 2] = x[2] = x_new[2];
@@ -312,16 +320,16 @@ int gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const do
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 16 + 2] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 16 + 3] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 16 + 6] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 16 + 7] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
     }
     t = 0;
@@ -342,6 +350,7 @@ int gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const do
         double *P_b = P_b_pair[0];
         double *P_new_b = P_b_pair[1];
         double z_b[2 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 4; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 4 + i];
@@ -377,7 +386,20 @@ int gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const do
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                gsm2d_a_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+                status_b[j] = gsm2d_a_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 4; ++i) {

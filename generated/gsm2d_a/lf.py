@@ -14,8 +14,9 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     run(zs[steps, 2], x0[4], P0[4, 4]) -> (xs[steps, 4], Ps[steps, 4, 4])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
-    step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 44, sub 16, mul 96, div 4, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 160, instructions 164)
+    step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 2: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 44, sub 16, mul 96, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 160, instructions 166)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -38,6 +39,13 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
 
 try:
     from derive.errors import PatternError
@@ -65,6 +73,27 @@ def _require_zero(values, indices, n, name, message):
             value = float(value[value != 0][0])
             entry = f"{name}[{k // n}][{k % n}]"
             raise PatternError(f"{entry} = {value!r}: {message}")
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -110,6 +139,7 @@ def step(x, P, z):
     Returns:
         x_new [4]: x(k+1/k+1)
         P_new [(4, 4) array, symmetric, then any track axes]: P(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 4 entries).
     """
     if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
@@ -202,6 +232,7 @@ def _step_in_pattern(x, P, z):
     t77 = 0.0020408163265306124 + t74
     t78 = 0.004081632653061225 + t75
     t79 = 0.00816326530612245 + t76
+    _require_present((z[0], z[1],), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t28, t29, t68, t69]
     P_new = [t37, t38, 0.0, 0.0, t38, t39, 0.0, 0.0, 0.0, 0.0, t77, t78, 0.0, 0.0, t78, t79]
     return x_new, P_new
@@ -270,6 +301,8 @@ def run(zs, x0, P0):
                 t63 = x_3 + (P_1*t58 + P_5*t59)
                 x_2 = 0.061224489795918366*z_1 + (t14*t62 + t15*t63)
                 x_3 = 0.12244897959183673*z_1 + (t17*t63 - t16*t62)
+                if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                    raise NumericalError(f"step {len(rows) // 64}: " + _nan_named((z_0, z_1,), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
                 keep(pack(x_0, x_1, x_2, x_3, t37, t38, 0.0, t39))
                 P_0 = t37
                 P_1 = t38
@@ -330,6 +363,8 @@ def run(zs, x0, P0):
             t77 = 0.0020408163265306124 + (0.9387755102040817*t70 + 0.8775510204081632*t71)
             t78 = 0.004081632653061225 + (0.7551020408163265*t71 - 0.12244897959183673*t70)
             P_15 = 0.00816326530612245 + (0.7551020408163265*(P_15*t57 - P_11*t56) - 0.12244897959183673*(P_11*t57 - P_10*t56))
+            if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 88}: " + _nan_named((z_0, z_1,), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, x_3, t37, t38, 0.0, P_5, t77, t78, P_15))
             P_0 = t37
             P_1 = t38
@@ -343,9 +378,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step_in_pattern(x, P, zs[k])
-        for i in range(4):
-            xs[k, i] = x[i]
-        for i in range(16):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step_in_pattern(x, P, zs[k])
+            for i in range(4):
+                xs[k, i] = x[i]
+            for i in range(16):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 4, 4) + track)

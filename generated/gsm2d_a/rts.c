@@ -18,18 +18,19 @@
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- *     backward 4: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 5: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     backward 6: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     backward 7: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
- *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 6, calls 0 (flops 50, instructions 46)
+ *     step 3: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ *     backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     backward 8: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
+ *     backward 9: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 8, calls 0 (flops 50, instructions 48)
  * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 10, mul 20, div 10, sqrt 0, fma 28, neg 0, cmp 16, calls 0 (flops 110, instructions 98)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 40 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["gsm2d_a_rts_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["x_pred",[4],true,false,false],["P_pred",[4,4],true,false,false]]],["gsm2d_a_rts_backward","backward",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_pred",[4],false,false,false],["P_pred",[4,4],false,false,false],["x_smooth_next",[4],false,false,false],["P_smooth_next",[4,4],false,false,false],["x_smooth",[4],true,false,false],["P_smooth",[4,4],true,false,false]]],["gsm2d_a_rts_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,false,false],["work",["steps",40],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["backward",4,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",5,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["backward",8,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,2,2,3,3,3,6,6,6,7,7,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_rts_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["x_pred",[4],true,false,false],["P_pred",[4,4],true,false,false]]],["gsm2d_a_rts_backward","backward",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_pred",[4],false,false,false],["P_pred",[4,4],false,false,false],["x_smooth_next",[4],false,false,false],["P_smooth_next",[4,4],false,false,false],["x_smooth",[4],true,false,false],["P_smooth",[4,4],true,false,false]]],["gsm2d_a_rts_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,false,false],["work",["steps",40],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["backward",5,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",8,"P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["backward",9,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,2,2,3,3,3,6,6,6,7,7,7]]],"present":{"3":["z",["zx","zy"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -115,6 +116,9 @@ DERIVE_INLINE int gsm2d_a_rts_step_body(const double *restrict x, const double *
     const double t47 = DERIVE_FNMA(t16, t24, t11);
     const double t48 = DERIVE_FNMA(t17, t24, t12);
     const double t49 = DERIVE_FNMA(t17, t25, t13);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
+        status = 3; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t34;
     x_new[1 * s] = t35;
     x_new[2 * s] = t36;
@@ -161,16 +165,16 @@ DERIVE_INLINE int gsm2d_a_rts_step_body(const double *restrict x, const double *
 int gsm2d_a_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
 {
     if (!(P[2] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[6] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     if (!(P[7] == 0.0)) {
-        return 3; /* outside P's pattern */
+        return 4; /* outside P's pattern */
     }
     return gsm2d_a_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
@@ -178,62 +182,62 @@ int gsm2d_a_rts_step(const double *restrict x, const double *restrict P, const d
 int gsm2d_a_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)
 {
     if (!(P[2] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P[6] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P[7] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_pred[2] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_pred[3] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_pred[6] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_pred[7] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_smooth_next[2] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_smooth_next[3] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_smooth_next[6] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     if (!(P_smooth_next[7] == 0.0)) {
-        return 8; /* outside P's pattern */
+        return 9; /* outside P's pattern */
     }
     const double t0 = P[0] + P[1];
     const double t1 = P[1] + P[5];
     const double t2 = P[10] + P[11];
     const double t3 = P[11] + P[15];
     if (!(P_pred[0] > 0.0)) {
-        return 4; /* P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 5; /* P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t4 = 1.0/P_pred[0];
     const double t5 = P_pred[1]*t4;
     const double t6 = DERIVE_FNMA(P_pred[1], t5, P_pred[5]);
     if (!(t6 > 0.0)) {
-        return 5; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        return 6; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     if (!(P_pred[10] > 0.0)) {
-        return 6; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        return 7; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t7 = 1.0/P_pred[10];
     const double t8 = P_pred[11]*t7;
     const double t9 = DERIVE_FNMA(P_pred[11], t8, P_pred[15]);
     if (!(t9 > 0.0)) {
-        return 7; /* P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
+        return 8; /* P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     }
     const double t10 = DERIVE_FNMA(t0, t5, P[1]);
     const double t11 = DERIVE_FNMA(t1, t5, P[5]);

@@ -18,18 +18,19 @@
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- *     backward 4: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 5: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     backward 6: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     backward 7: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
- *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 6, calls 0 (flops 50, instructions 46)
+ *     step 3: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ *     backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     backward 8: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
+ *     backward 9: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 8, calls 0 (flops 50, instructions 48)
  * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 10, mul 20, div 10, sqrt 0, fma 28, neg 0, cmp 16, calls 0 (flops 110, instructions 98)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 40 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["gsm2d_a_rts_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["x_pred",[4],true,false,false],["P_pred",[4,4],true,false,false]]],["gsm2d_a_rts_backward","backward",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_pred",[4],false,false,false],["P_pred",[4,4],false,false,false],["x_smooth_next",[4],false,false,false],["P_smooth_next",[4,4],false,false,false],["x_smooth",[4],true,false,false],["P_smooth",[4,4],true,false,false]]],["gsm2d_a_rts_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,false,false],["work",["steps",40],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["backward",4,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",5,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["backward",8,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,2,2,3,3,3,6,6,6,7,7,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_rts_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["x_pred",[4],true,false,false],["P_pred",[4,4],true,false,false]]],["gsm2d_a_rts_backward","backward",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_pred",[4],false,false,false],["P_pred",[4,4],false,false,false],["x_smooth_next",[4],false,false,false],["P_smooth_next",[4,4],false,false,false],["x_smooth",[4],true,false,false],["P_smooth",[4,4],true,false,false]]],["gsm2d_a_rts_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,false,false],["work",["steps",40],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["backward",5,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",8,"P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["backward",9,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,2,2,3,3,3,6,6,6,7,7,7]]],"present":{"3":["z",["zx","zy"]]}}
  */
 #ifndef DERIVE_gsm2d_a_rts_H
 #define DERIVE_gsm2d_a_rts_H
@@ -61,12 +62,13 @@ enum gsm2d_a_rts_status {
     gsm2d_a_rts_STATUS_OK = 0,
     gsm2d_a_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
     gsm2d_a_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2,
-    gsm2d_a_rts_STATUS_STEP_P_OUTSIDE_PATTERN_3 = 3,
-    gsm2d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_4 = 4,
+    gsm2d_a_rts_STATUS_STEP_MEASUREMENT_NAN_3 = 3,
+    gsm2d_a_rts_STATUS_STEP_P_OUTSIDE_PATTERN_4 = 4,
     gsm2d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_5 = 5,
     gsm2d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_6 = 6,
     gsm2d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_7 = 7,
-    gsm2d_a_rts_STATUS_BACKWARD_P_SMOOTH_NEXT_OUTSIDE_PATTERN_8 = 8
+    gsm2d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_8 = 8,
+    gsm2d_a_rts_STATUS_BACKWARD_P_SMOOTH_NEXT_OUTSIDE_PATTERN_9 = 9
 };
 
 #ifdef __cplusplus

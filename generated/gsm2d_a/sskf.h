@@ -10,16 +10,18 @@
  * m: 2 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gsm2d_a_sskf_step(x[4], z[2], x_new[4] out)
- *     void gsm2d_a_sskf_run(steps, z[steps*2], x0[4], xs[steps*4] out)
- *     void gsm2d_a_sskf_run_tracks(steps, tracks, z[steps*2], x0[4], xs[steps*4] out)
+ *     int gsm2d_a_sskf_step(x[4], z[2], x_new[4] out)
+ *     int gsm2d_a_sskf_run(steps, z[steps*2], x0[4], xs[steps*4] out)
+ *     int gsm2d_a_sskf_run_tracks(steps, tracks, z[steps*2], x0[4], xs[steps*4] out)
  *     many tracks: gsm2d_a_sskf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 8, neg 0, cmp 0, calls 0 (flops 20, instructions 12)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter sskf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 8, neg 0, cmp 2, calls 0 (flops 20, instructions 14)
  * A: (4, 4) constants baked into the code
  * B = [[0.36535881073846804, 0.                 ], [0.2068348086341748 , 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.2068348086341748 ]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 0, calls 0 (flops 48, instructions 28)
- * derive-interface: {"functions":[["gsm2d_a_sskf_step","step",false,false,[["x",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_sskf_run","run",false,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]],["gsm2d_a_sskf_run_tracks","run_tracks",false,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 4, calls 0 (flops 48, instructions 32)
+ * derive-interface: {"functions":[["gsm2d_a_sskf_step","step",true,false,[["x",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_sskf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]],["gsm2d_a_sskf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sskf takes no absent measurements)",[]]],"present":{"1":["z",["zx","zy"]]}}
  */
 #ifndef DERIVE_gsm2d_a_sskf_H
 #define DERIVE_gsm2d_a_sskf_H
@@ -46,13 +48,19 @@
 #define gsm2d_a_sskf_M 2
 #define gsm2d_a_sskf_NP 0
 
+/* the statuses listed above, by name (the functions return them as int) */
+enum gsm2d_a_sskf_status {
+    gsm2d_a_sskf_STATUS_OK = 0,
+    gsm2d_a_sskf_STATUS_STEP_MEASUREMENT_NAN_1 = 1
+};
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void gsm2d_a_sskf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
-void gsm2d_a_sskf_run(size_t steps, const double *z, const double *x0, double *xs);
-void gsm2d_a_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
+int gsm2d_a_sskf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
+int gsm2d_a_sskf_run(size_t steps, const double *z, const double *x0, double *xs);
+int gsm2d_a_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

@@ -12,7 +12,9 @@ parameters: none
 interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(x[4], z[2]) -> (x_new[4])
     run(zs[steps, 2], x0[4]) -> (xs[steps, 4])
-operations per call of step (Python): add 6, sub 2, mul 12, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 20, instructions 20)
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (filter sskf takes no absent measurements)
+operations per call of step (Python): add 6, sub 2, mul 12, div 0, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 20, instructions 22)
 A: (4, 4) constants baked into the code
 B = [[0.36535881073846804, 0.                 ], [0.2068348086341748 , 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.2068348086341748 ]]
 """
@@ -35,6 +37,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -70,11 +100,13 @@ def step(x, z):
         z [2]: z(k+1)
     Returns:
         x_new [4]: x(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     """
     t0 = 0.634641189261532*x[0] + 0.26928237852306397*x[1] + 0.36535881073846804*z[0]
     t1 = 0.5863303827316504*x[1] - 0.2068348086341748*x[0] + 0.2068348086341748*z[0]
     t2 = 0.634641189261532*x[2] + 0.26928237852306397*x[3] + 0.36535881073846804*z[1]
     t3 = 0.5863303827316504*x[3] - 0.2068348086341748*x[2] + 0.2068348086341748*z[1]
+    _require_present((z[0], z[1],), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (filter sskf takes no absent measurements)')
     x_new = [t0, t1, t2, t3]
     return x_new
 
@@ -106,6 +138,8 @@ def run(zs, x0):
             x_1 = 0.5863303827316504*x_1 - 0.2068348086341748*x_0 + 0.2068348086341748*z_0
             t2 = 0.634641189261532*x_2 + 0.26928237852306397*x_3 + 0.36535881073846804*z_1
             x_3 = 0.5863303827316504*x_3 - 0.2068348086341748*x_2 + 0.2068348086341748*z_1
+            if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 32}: " + _nan_named((z_0, z_1,), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (filter sskf takes no absent measurements)'))
             keep(pack(t0, x_1, t2, x_3))
             x_0 = t0
             x_2 = t2
@@ -114,7 +148,10 @@ def run(zs, x0):
     xs = np.empty((steps, 4) + track)
     x = x0
     for k in range(steps):
-        x = step(x, zs[k])
-        for i in range(4):
-            xs[k, i] = x[i]
+        try:
+            x = step(x, zs[k])
+            for i in range(4):
+                xs[k, i] = x[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs

@@ -25,20 +25,21 @@
  *     step 6: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     step 7: innovation variance 2 of a scalar update is not positive (D or R not positive)
  *     step 8: innovation variance 3 of a scalar update is not positive (D or R not positive)
- *     step 9: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 10: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
- *     enter 11: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 12: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- *     store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 8, mul 18, div 6, sqrt 0, fma 16, neg 0, cmp 14, select 2, calls 0 (flops 78, instructions 78)
+ *     step 9: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 10: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
+ *     enter 11: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+ *     enter 12: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 13: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 14: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 15: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ *     store 16: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 8, mul 18, div 6, sqrt 0, fma 16, neg 0, cmp 16, select 2, calls 0 (flops 78, instructions 80)
  * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 4, sub 0, mul 0, div 2, sqrt 0, fma 2, neg 0, cmp 10, select 2, calls 0 (flops 10, instructions 20)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 2, neg 0, cmp 4, calls 0 (flops 6, instructions 8)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["gsm2d_a_udkf_step","step",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["U_new",[4,4],true,false,false],["D_new",[4],true,false,false]]],["gsm2d_a_udkf_enter","enter",true,false,[["x0",[4],false,false,false],["P0",[4,4],false,false,false],["x",[4],true,false,false],["U",[4,4],true,false,false],["D",[4],true,false,false]]],["gsm2d_a_udkf_store","store",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_udkf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",5,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",7,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",9,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["enter",10,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",11,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",12,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",13,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",14,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["store",15,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_udkf_step","step",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["U_new",[4,4],true,false,false],["D_new",[4],true,false,false]]],["gsm2d_a_udkf_enter","enter",true,false,[["x0",[4],false,false,false],["P0",[4,4],false,false,false],["x",[4],true,false,false],["U",[4,4],true,false,false],["D",[4],true,false,false]]],["gsm2d_a_udkf_store","store",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_udkf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",5,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",7,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",9,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",10,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["enter",11,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",12,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",13,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",14,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",15,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["store",16,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]],"present":{"9":["z",["zx","zy"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -162,6 +163,9 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     const double t57 = t50*t56;
     const double t58 = DERIVE_FMA(t55, t57, t25);
     const double t59 = DERIVE_FMA(t44, t57, x[3 * s]);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
+        status = 9; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t41;
     x_new[1 * s] = t42;
     x_new[2 * s] = t58;
@@ -192,16 +196,16 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
 int gsm2d_a_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
 {
     if (!(U[2] == 0.0)) {
-        return 9; /* outside P's pattern */
+        return 10; /* outside P's pattern */
     }
     if (!(U[3] == 0.0)) {
-        return 9; /* outside P's pattern */
+        return 10; /* outside P's pattern */
     }
     if (!(U[6] == 0.0)) {
-        return 9; /* outside P's pattern */
+        return 10; /* outside P's pattern */
     }
     if (!(U[7] == 0.0)) {
-        return 9; /* outside P's pattern */
+        return 10; /* outside P's pattern */
     }
     return gsm2d_a_udkf_step_body(x, U, D, z, x_new, U_new, D_new, 1);
 }
@@ -209,38 +213,38 @@ int gsm2d_a_udkf_step(const double *restrict x, const double *restrict U, const 
 int gsm2d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[2] == 0.0)) {
-        return 14; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 14; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(P0[6] == 0.0)) {
-        return 14; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(P0[7] == 0.0)) {
-        return 14; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[15];
     if (!(t0 > 0.0)) {
-        return 10; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
+        return 11; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
     }
     const double t1 = ((P0[15] <= 0.0) ? 1.0 : P0[15]);
     const double t2 = P0[11]/t1;
     const double t3 = DERIVE_FNMA(P0[11], t2, P0[10]);
     const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
-        return 11; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 12; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
     const double t5 = 2.2250738585072014e-308 + P0[5];
     if (!(t5 > 0.0)) {
-        return 12; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 13; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t6 = ((P0[5] <= 0.0) ? 1.0 : P0[5]);
     const double t7 = P0[1]/t6;
     const double t8 = DERIVE_FNMA(P0[1], t7, P0[0]);
     const double t9 = 2.2250738585072014e-308 + t8;
     if (!(t9 > 0.0)) {
-        return 13; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 14; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -273,16 +277,16 @@ int gsm2d_a_udkf_store(const double *restrict x, const double *restrict U, const
 {
     (void)x;
     if (!(U[2] == 0.0)) {
-        return 15; /* outside P's pattern */
+        return 16; /* outside P's pattern */
     }
     if (!(U[3] == 0.0)) {
-        return 15; /* outside P's pattern */
+        return 16; /* outside P's pattern */
     }
     if (!(U[6] == 0.0)) {
-        return 15; /* outside P's pattern */
+        return 16; /* outside P's pattern */
     }
     if (!(U[7] == 0.0)) {
-        return 15; /* outside P's pattern */
+        return 16; /* outside P's pattern */
     }
     const double t0 = D[1]*U[1];
     const double t1 = D[3]*U[11];

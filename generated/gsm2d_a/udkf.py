@@ -25,14 +25,15 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 6: innovation variance 1 of a scalar update is not positive (D or R not positive)
     step 7: innovation variance 2 of a scalar update is not positive (D or R not positive)
     step 8: innovation variance 3 of a scalar update is not positive (D or R not positive)
-    step 9: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
-    enter 10: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
-    enter 11: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 12: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
-    store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 28, sub 10, mul 34, div 6, sqrt 0, fma 0, neg 0, cmp 14, select 2, calls 0 (flops 78, instructions 94)
+    step 9: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 10: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
+    enter 11: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+    enter 12: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 13: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 14: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 15: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+    store 16: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 28, sub 10, mul 34, div 6, sqrt 0, fma 0, neg 0, cmp 16, select 2, calls 0 (flops 78, instructions 96)
 operations per call of enter (Python): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 10, select 2, calls 0 (flops 10, instructions 22)
 operations per call of store (Python): add 2, sub 0, mul 4, div 0, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 6, instructions 10)
 P0 pattern declared: zero
@@ -109,6 +110,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -237,6 +259,7 @@ def _step_in_pattern(x, U, D, z):
     t57 = t50*t56
     t58 = t25 + t55*t57
     t59 = x[3] + t44*t57
+    _require_present((z[0], z[1],), ('zx (z[0])', 'zy (z[1])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t41, t42, t58, t59]
     U_new = [1.0, t37, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, t54, 0.0, 0.0, 0.0, 1.0]
     D_new = [t31, t35, t48, t52]
@@ -341,10 +364,13 @@ def run(zs, x0, P0):
     Ps = np.empty((steps, 16) + track)
     x, U, D = _enter(x0, P0.reshape((16,) + P0.shape[2:]))
     for k in range(steps):
-        x, U, D = _step_in_pattern(x, U, D, zs[k])
-        for i in range(4):
-            xs[k, i] = x[i]
-        Ps_k = _store(x, U, D)
-        for i in range(16):
-            Ps[k, i] = Ps_k[i]
+        try:
+            x, U, D = _step_in_pattern(x, U, D, zs[k])
+            for i in range(4):
+                xs[k, i] = x[i]
+            Ps_k = _store(x, U, D)
+            for i in range(16):
+                Ps[k, i] = Ps_k[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 4, 4) + track)

@@ -17,10 +17,11 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 1, mul 30, div 4, sqrt 0, fma 28, neg 0, cmp 1, calls 0 (flops 115, instructions 88)
+ *     step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 1, mul 30, div 4, sqrt 0, fma 28, neg 0, cmp 2, calls 0 (flops 115, instructions 89)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * derive-interface: {"functions":[["gsm2d_b_jklf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_jklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["gsm2d_b_jklf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_jklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"2":["z",["z"]]}}
  */
 #ifndef DERIVE_gsm2d_b_jklf_H
 #define DERIVE_gsm2d_b_jklf_H
@@ -50,7 +51,8 @@
 /* the statuses listed above, by name (the functions return them as int) */
 enum gsm2d_b_jklf_status {
     gsm2d_b_jklf_STATUS_OK = 0,
-    gsm2d_b_jklf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1
+    gsm2d_b_jklf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
+    gsm2d_b_jklf_STATUS_STEP_MEASUREMENT_NAN_2 = 2
 };
 
 #ifdef __cplusplus

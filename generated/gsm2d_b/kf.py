@@ -15,7 +15,8 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 14, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 25, instructions 26)
+    step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+operations per call of step (Python): add 14, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 25, instructions 27)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
@@ -54,6 +55,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -136,6 +158,7 @@ def _step(x, P, z):
     t22 = t4 - t19
     t23 = t5 - t20
     t24 = t6 - t21
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t17, t18]
     P_new = [t22, t23, t23, t24]
     return x_new, P_new
@@ -190,6 +213,8 @@ def run(zs, x0, P0):
             P_0 = t4 - t11*t7
             P_1 = t5 - t11*t8
             P_3 = t6 - t12*t8
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 40}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, P_0, P_1, P_3))
         table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
@@ -198,9 +223,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(2):
-            xs[k, i] = x[i]
-        for i in range(4):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(2):
+                xs[k, i] = x[i]
+            for i in range(4):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 2, 2) + track)

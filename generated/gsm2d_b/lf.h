@@ -10,15 +10,17 @@
  * m: 1 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gsm2d_b_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
- *     void gsm2d_b_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
- *     void gsm2d_b_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     int gsm2d_b_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
+ *     int gsm2d_b_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     int gsm2d_b_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: gsm2d_b_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 0, mul 25, div 2, sqrt 0, fma 23, neg 0, cmp 0, calls 0 (flops 80, instructions 57)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 0, mul 25, div 2, sqrt 0, fma 23, neg 0, cmp 1, calls 0 (flops 80, instructions 58)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * derive-interface: {"functions":[["gsm2d_b_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_lf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["gsm2d_b_lf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_lf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_lf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"1":["z",["z"]]}}
  */
 #ifndef DERIVE_gsm2d_b_lf_H
 #define DERIVE_gsm2d_b_lf_H
@@ -45,13 +47,19 @@
 #define gsm2d_b_lf_M 1
 #define gsm2d_b_lf_NP 0
 
+/* the statuses listed above, by name (the functions return them as int) */
+enum gsm2d_b_lf_status {
+    gsm2d_b_lf_STATUS_OK = 0,
+    gsm2d_b_lf_STATUS_STEP_MEASUREMENT_NAN_1 = 1
+};
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void gsm2d_b_lf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new);
-void gsm2d_b_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
-void gsm2d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int gsm2d_b_lf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new);
+int gsm2d_b_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int gsm2d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }

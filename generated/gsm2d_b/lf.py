@@ -13,7 +13,9 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     step(x[2], P[2*2], z[1]) -> (x_new[2], P_new[2, 2])
     run(zs[steps, 1], x0[2], P0[2, 2]) -> (xs[steps, 2], Ps[steps, 2, 2])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
-operations per call of step (Python): add 22, sub 8, mul 48, div 2, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 80, instructions 80)
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+operations per call of step (Python): add 22, sub 8, mul 48, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 80, instructions 81)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
@@ -36,6 +38,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -81,6 +111,7 @@ def step(x, P, z):
     Returns:
         x_new [2]: x(k+1/k+1)
         P_new [(2, 2) array, symmetric, then any track axes]: P(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     """
     x_new, P_new = _step(x, P, z)
     return x_new, _matrix(P_new, (2, 2))
@@ -131,6 +162,7 @@ def _step(x, P, z):
     t37 = 0.0020408163265306124 + t34
     t38 = 0.004081632653061225 + t35
     t39 = 0.00816326530612245 + t36
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t28, t29]
     P_new = [t37, t38, t38, t39]
     return x_new, P_new
@@ -190,6 +222,8 @@ def run(zs, x0, P0):
             t37 = 0.0020408163265306124 + (0.9387755102040817*t30 + 0.8775510204081632*t31)
             t38 = 0.004081632653061225 + (0.7551020408163265*t31 - 0.12244897959183673*t30)
             P_3 = 0.00816326530612245 + (0.7551020408163265*(P_3*t17 - P_1*t16) - 0.12244897959183673*(P_1*t17 - P_0*t16))
+            if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 40}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, t37, t38, P_3))
             P_0 = t37
             P_1 = t38
@@ -200,9 +234,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(2):
-            xs[k, i] = x[i]
-        for i in range(4):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(2):
+                xs[k, i] = x[i]
+            for i in range(4):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 2, 2) + track)

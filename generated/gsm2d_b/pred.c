@@ -11,16 +11,18 @@
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
  *     void gsm2d_b_pred_init(x0[2], x_new[2] out)
- *     void gsm2d_b_pred_step(x[2], z[1], x_new[2] out)
- *     void gsm2d_b_pred_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ *     int gsm2d_b_pred_step(x[2], z[1], x_new[2] out)
+ *     int gsm2d_b_pred_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter pred takes no absent measurements)
  * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 10, instructions 7)
  * A_N = [[ 0.4278063806273572 ,  0.42780638062735715], [-0.2068348086341748 ,  0.7931651913658252 ]]
  * B_N = [[0.5721936193726429], [0.2068348086341748]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
- * derive-interface: {"functions":[["gsm2d_b_pred_init","init",false,false,[["x0",[2],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_pred_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_pred_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 24, instructions 16)
+ * derive-interface: {"functions":[["gsm2d_b_pred_init","init",false,false,[["x0",[2],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_pred_step","step",true,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_pred_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter pred takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -57,20 +59,30 @@
 #endif
 #endif
 
-DERIVE_INLINE void gsm2d_b_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int gsm2d_b_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.42780638062735715, x[1 * s], DERIVE_FMA(0.4278063806273572, x[0], 0.5721936193726429*z[0]));
     const double t1 = DERIVE_FMA(0.7931651913658252, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
+    if (!((z[0] == z[0])) && !status) {
+        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
+    return status;
 }
 
-DERIVE_INLINE void gsm2d_b_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int gsm2d_b_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.522339429063298, x[1 * s], DERIVE_FMA(0.09453304843594088, x[0], DERIVE_FMA(0.5721936193726429, zn[0], 0.33327333219141636*z[0])));
     const double t1 = DERIVE_FMA(0.5406257699248478, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, zn[0], 0.04570461280680264*z[0])));
+    if (!((zn[0] == zn[0])) && !status) {
+        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
+    return status;
 }
 
 void gsm2d_b_pred_init(const double *restrict x0, double *restrict x_new)
@@ -80,13 +92,13 @@ void gsm2d_b_pred_init(const double *restrict x0, double *restrict x_new)
     x_new[1] = x0[1];
 }
 
-void gsm2d_b_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int gsm2d_b_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    gsm2d_b_pred_step_body(x, z, x_new, 1);
+    return gsm2d_b_pred_step_body(x, z, x_new, 1);
 }
 
 /* Run the predictor from x(N/0) = init(x0): row k of xs is the prediction after z[k]. */
-void gsm2d_b_pred_run(size_t steps, const double *z, const double *x0, double *xs)
+int gsm2d_b_pred_run(size_t steps, const double *z, const double *x0, double *xs)
 {
     double x_init[2];
     double x[2];
@@ -101,8 +113,14 @@ void gsm2d_b_pred_run(size_t steps, const double *z, const double *x0, double *x
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 1;
         const double *restrict znk = z + (k + 1) * 1;
-        gsm2d_b_pred_step_body(x, zk, x_mid, 1);
-        gsm2d_b_pred_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = gsm2d_b_pred_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = gsm2d_b_pred_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 2 + 0] = x_mid[0];
         xs[k * 2 + 1] = x_mid[1];
         xs[(k + 1) * 2 + 0] = x[0] = x_new[0];
@@ -111,8 +129,12 @@ void gsm2d_b_pred_run(size_t steps, const double *z, const double *x0, double *x
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        gsm2d_b_pred_step_body(x, zk, x_new, 1);
+        const int step_status = gsm2d_b_pred_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
     }
+    return 0;
 }

@@ -10,16 +10,18 @@
  * m: 1 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gsm2d_b_sskf_step(x[2], z[1], x_new[2] out)
- *     void gsm2d_b_sskf_run(steps, z[steps*1], x0[2], xs[steps*2] out)
- *     void gsm2d_b_sskf_run_tracks(steps, tracks, z[steps*1], x0[2], xs[steps*2] out)
+ *     int gsm2d_b_sskf_step(x[2], z[1], x_new[2] out)
+ *     int gsm2d_b_sskf_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ *     int gsm2d_b_sskf_run_tracks(steps, tracks, z[steps*1], x0[2], xs[steps*2] out)
  *     many tracks: gsm2d_b_sskf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter sskf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 10, instructions 7)
  * A = [[ 0.634641189261532  ,  0.26928237852306397], [-0.2068348086341748 ,  0.5863303827316504 ]]
  * B = [[0.36535881073846804], [0.2068348086341748 ]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
- * derive-interface: {"functions":[["gsm2d_b_sskf_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_sskf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["gsm2d_b_sskf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 24, instructions 16)
+ * derive-interface: {"functions":[["gsm2d_b_sskf_step","step",true,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_sskf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["gsm2d_b_sskf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sskf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -92,29 +94,39 @@
 #endif
 #endif
 
-DERIVE_INLINE void gsm2d_b_sskf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int gsm2d_b_sskf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.26928237852306397, x[1 * s], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*z[0]));
     const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
+    if (!((z[0] == z[0])) && !status) {
+        status = 1; /* measurement is NaN (filter sskf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
+    return status;
 }
 
-DERIVE_INLINE void gsm2d_b_sskf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int gsm2d_b_sskf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.3287861290153686, x[1 * s], DERIVE_FMA(0.3470724698769183, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.2875687193846137*z[0])));
     const double t1 = DERIVE_FMA(0.28808634848387027, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, zn[0], 0.04570461280680265*z[0])));
+    if (!((zn[0] == zn[0])) && !status) {
+        status = 1; /* measurement is NaN (filter sskf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
+    return status;
 }
 
-void gsm2d_b_sskf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int gsm2d_b_sskf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    gsm2d_b_sskf_step_body(x, z, x_new, 1);
+    return gsm2d_b_sskf_step_body(x, z, x_new, 1);
 }
 
 /* Run the steady-state Kalman filter over steps steps. */
-void gsm2d_b_sskf_run(size_t steps, const double *z, const double *x0, double *xs)
+int gsm2d_b_sskf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
     double x[2];
     double x_new[2];
@@ -127,8 +139,14 @@ void gsm2d_b_sskf_run(size_t steps, const double *z, const double *x0, double *x
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 1;
         const double *restrict znk = z + (k + 1) * 1;
-        gsm2d_b_sskf_step_body(x, zk, x_mid, 1);
-        gsm2d_b_sskf_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = gsm2d_b_sskf_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = gsm2d_b_sskf_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 2 + 0] = x_mid[0];
         xs[k * 2 + 1] = x_mid[1];
         xs[(k + 1) * 2 + 0] = x[0] = x_new[0];
@@ -137,10 +155,14 @@ void gsm2d_b_sskf_run(size_t steps, const double *z, const double *x0, double *x
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        gsm2d_b_sskf_step_body(x, zk, x_new, 1);
+        const int step_status = gsm2d_b_sskf_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
     }
+    return 0;
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
@@ -150,7 +172,7 @@ void gsm2d_b_sskf_run(size_t steps, const double *z, const double *x0, double *x
  * over the lanes in one loop the compiler vectorises, each lane the operations of its own
  * run in the same order; the last tracks, fewer than a block, by run itself.
  * A non-zero status stops the whole run. */
-void gsm2d_b_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
+int gsm2d_b_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
 {
     size_t t = 0;
     size_t k, i, j;
@@ -169,6 +191,7 @@ void gsm2d_b_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const
         double z_b[1 * DERIVE_LANES];
         double x_mid_b[2 * DERIVE_LANES];
         double zn_b[1 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 2; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 2 + i];
@@ -199,8 +222,22 @@ void gsm2d_b_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                gsm2d_b_sskf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
-                gsm2d_b_sskf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                const int step_status = gsm2d_b_sskf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
+                const int pass_status = gsm2d_b_sskf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = step_status ? step_status : pass_status;
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 2; ++i) {
@@ -238,7 +275,20 @@ void gsm2d_b_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                gsm2d_b_sskf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = gsm2d_b_sskf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 2; ++i) {
@@ -254,6 +304,10 @@ void gsm2d_b_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const
     }
     /* the last tracks, fewer than a block: run on each */
     for (; t < tracks; ++t) {
-        gsm2d_b_sskf_run(steps, z + t * steps * 1, x0 + t * 2, xs + t * steps * 2);
+        const int track_status = gsm2d_b_sskf_run(steps, z + t * steps * 1, x0 + t * 2, xs + t * steps * 2);
+        if (track_status) {
+            return track_status;
+        }
     }
+    return 0;
 }

@@ -21,9 +21,10 @@ status (C return value; Python raises NumericalError): 0 success
     step 2: P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative
     step 3: innovation variance 0 of a scalar update is not positive (D or R not positive)
     step 4: innovation variance 1 of a scalar update is not positive (D or R not positive)
-    enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-operations per call of step (Python): add 14, sub 5, mul 17, div 3, sqrt 0, fma 0, neg 0, cmp 5, select 1, calls 0 (flops 39, instructions 45)
+    step 5: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    enter 6: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 7: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+operations per call of step (Python): add 14, sub 5, mul 17, div 3, sqrt 0, fma 0, neg 0, cmp 6, select 1, calls 0 (flops 39, instructions 46)
 operations per call of enter (Python): add 2, sub 1, mul 1, div 1, sqrt 0, fma 0, neg 0, cmp 3, select 1, calls 0 (flops 5, instructions 9)
 operations per call of store (Python): add 1, sub 0, mul 2, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 3, instructions 3)
 P0 pattern declared: zero
@@ -73,6 +74,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -165,6 +187,7 @@ def _step(x, U, D, z):
     t27 = t20*t26
     t28 = t12 + t25*t27
     t29 = x[1] + t14*t27
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t28, t29]
     U_new = [1.0, t24, 0.0, 1.0]
     D_new = [t18, t22]
@@ -258,10 +281,13 @@ def run(zs, x0, P0):
     Ps = np.empty((steps, 4) + track)
     x, U, D = _enter(x0, P0.reshape((4,) + P0.shape[2:]))
     for k in range(steps):
-        x, U, D = _step(x, U, D, zs[k])
-        for i in range(2):
-            xs[k, i] = x[i]
-        Ps_k = _store(x, U, D)
-        for i in range(4):
-            Ps[k, i] = Ps_k[i]
+        try:
+            x, U, D = _step(x, U, D, zs[k])
+            for i in range(2):
+                xs[k, i] = x[i]
+            Ps_k = _store(x, U, D)
+            for i in range(4):
+                Ps[k, i] = Ps_k[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 2, 2) + track)

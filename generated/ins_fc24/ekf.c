@@ -35,9 +35,9 @@
  *     update_mag 10: S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
  *     update_airspeed 12: S is not positive definite: the variance s of measurement 0 (tas) of the sequential update is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 57, sub 8, mul 115, div 0, sqrt 0, fma 1432, neg 29, cmp 1, calls 0 (flops 3044, instructions 1642)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2357, neg 0, cmp 6, calls 0 (flops 4904, instructions 2553)
- * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 1, mul 30, div 2, sqrt 1, fma 327, neg 24, cmp 1, calls 0 (flops 689, instructions 387)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 48, sub 11, mul 96, div 1, sqrt 1, fma 1424, neg 29, cmp 1, calls 0 (flops 3005, instructions 1611)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 275, div 7, sqrt 1, fma 1980, neg 0, cmp 6, calls 0 (flops 4255, instructions 2281)
+ * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 45, div 2, sqrt 1, fma 312, neg 0, cmp 1, calls 0 (flops 674, instructions 363)
  * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1554, neg 9, cmp 3, calls 0 (flops 3388, instructions 1846)
  * operations per call of update_airspeed (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 3, mul 58, div 3, sqrt 2, fma 430, neg 2, cmp 1, calls 0 (flops 926, instructions 499)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -49,6 +49,7 @@
  * update of mag: sequential, one scalar update per measurement in the order magx, magy, magz (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
  * unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
+ * invariants used: q0^2 + q1^2 + q2^2 + q3^2 = 1 in Q(x, u) = Fu Qu Fu^T, entries (0, 0), (1, 1), (2, 2), (3, 3), (4, 4), (4, 5), (4, 6), (5, 5), (5, 6), (6, 6) (reduced modulo it where that is cheaper); exact: predict renormalises the groups at its start, so f, F, Fu and Q are taken at unit groups
  * vector rows (rows = vector): predict, update_gnss, update_baro, update_mag, update_airspeed computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
  * derive-interface: {"functions":[["ins_fc24_ekf_predict","predict",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["u",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_gnss","update_gnss",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_baro","update_baro",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_mag","update_mag",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[3],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_airspeed","update_airspeed",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["z_mag",["steps",3],false,false,false],["z_airspeed",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[24],false,false,false],["P0",[24,24],false,false,false],["xs",["steps",24],true,false,false],["Ps",["steps",24,24],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive",[]],["update_mag",9,"S is not positive definite: the variance s of measurement 0 (magx) of the sequential update is not positive",[]],["update_mag",10,"S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive",[]],["update_mag",11,"S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive",[]],["update_airspeed",12,"S is not positive definite: the variance s of measurement 0 (tas) of the sequential update is not positive",[]]]}
  */
@@ -109,1180 +110,1493 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     if (!(p[0] >= 0.0)) {
         return 1; /* parameter dt must be nonnegative */
     }
-    const double t0 = p[0]*x[10];
-    const double t1 = u[0] - t0;
-    const double t2 = 0.5*x[1];
-    const double t3 = p[0]*x[11];
-    const double t4 = u[1] - t3;
-    const double t5 = 0.5*x[2];
-    const double t6 = p[0]*x[12];
-    const double t7 = u[2] - t6;
-    const double t8 = 0.5*x[3];
-    const double t9 = 0.5*x[0];
-    const double t10 = DERIVE_FNMA(p[0], x[14], u[4]);
-    const double t11 = 2.0*x[0];
-    const double t12 = x[3]*t11;
-    const double t13 = DERIVE_FMA(2.0, x[1]*x[2], -t12);
-    const double t14 = DERIVE_FNMA(p[0], x[15], u[5]);
-    const double t15 = x[2]*t11;
-    const double t16 = 2.0*x[1];
-    const double t17 = DERIVE_FMA(x[3], t16, t15);
-    const double t18 = DERIVE_FNMA(p[0], x[13], u[3]);
-    const double t19 = 2.0*(x[2]*x[2]);
-    const double t20 = DERIVE_FMA(2.0, x[3]*x[3], (-1.0));
-    const double t22 = -t19 - t20;
-    const double t23 = DERIVE_FMA(x[2], t16, t12);
-    const double t24 = x[1]*t11;
-    const double t25 = DERIVE_FMA(2.0, x[2]*x[3], -t24);
-    const double t26 = 2.0*(x[1]*x[1]);
-    const double t27 = -t20 - t26;
-    const double t28 = DERIVE_FMA(2.0, x[1]*x[3], -t15);
-    const double t29 = 2.0*x[3];
-    const double t30 = DERIVE_FMA(x[2], t29, t24);
-    const double t31 = 1.0 - t19 - t26;
-    const double t32 = DERIVE_FMA(0.5, t0, (-0.5)*u[0]);
-    const double t33 = DERIVE_FMA(0.5, t3, (-0.5)*u[1]);
-    const double t34 = DERIVE_FMA(0.5, t6, (-0.5)*u[2]);
-    const double t35 = p[0]*t2;
-    const double t36 = p[0]*t5;
-    const double t37 = p[0]*t8;
-    const double t38 = -t2;
-    const double t39 = -t5;
-    const double t40 = -t8;
-    const double t41 = -t32;
-    const double t42 = -t34;
-    const double t43 = -(p[0]*t9);
-    const double t44 = -t33;
-    const double t45 = 2.0*x[2];
-    const double t46 = t14*t45;
-    const double t47 = -(t10*t29);
-    const double t48 = t10*t45;
-    const double t49 = t14*t29;
-    const double t50 = t11*t14;
-    const double t51 = t10*t16;
-    const double t52 = 4.0*t18;
-    const double t53 = t10*t11;
-    const double t54 = t14*t16;
-    const double t55 = 4.0*t10;
-    const double t56 = -(t18*t45);
-    const double t57 = t16*t18;
-    const double t58 = t11*t18;
-    const double t59 = 4.0*t14;
-    const double t60 = DERIVE_FNMA(t7, t8, DERIVE_FNMA(t4, t5, DERIVE_FNMA(t1, t2, x[0])));
-    const double t61 = DERIVE_FMA(t5, t7, DERIVE_FNMA(t4, t8, DERIVE_FMA(t1, t9, x[1])));
-    const double t62 = DERIVE_FMA(t4, t9, DERIVE_FNMA(t2, t7, DERIVE_FMA(t1, t8, x[2])));
-    const double t63 = DERIVE_FMA(t7, t9, DERIVE_FMA(t2, t4, DERIVE_FNMA(t1, t5, x[3])));
-    const double t64 = DERIVE_FMA(t18, t22, DERIVE_FMA(t14, t17, DERIVE_FMA(t10, t13, x[4])));
-    const double t65 = DERIVE_FMA(t18, t23, DERIVE_FMA(t14, t25, DERIVE_FMA(t10, t27, x[5])));
-    const double t66 = DERIVE_FMA(t18, t28, DERIVE_FMA(t14, t31, DERIVE_FMA(t10, t30, DERIVE_FMA(9.80665, p[0], x[6]))));
-    const double t67 = DERIVE_FMA(p[0], x[4], x[7]);
-    const double t68 = DERIVE_FMA(p[0], x[5], x[8]);
-    const double t69 = DERIVE_FMA(p[0], x[6], x[9]);
-    const double t70 = t46 + t47;
-    const double t71 = t48 + t49;
-    const double t72 = DERIVE_FNMA(x[2], t52, t50 + t51);
-    const double t73 = DERIVE_FNMA(x[3], t52, t54 - t53);
-    const double t74 = p[0]*t22;
-    const double t75 = p[0]*t13;
-    const double t76 = p[0]*t17;
-    const double t77 = DERIVE_FMA(2.0, x[3]*t18, -t54);
-    const double t78 = DERIVE_FMA(x[1], t55, t50 + t56);
-    const double t79 = t49 + t57;
-    const double t80 = DERIVE_FNMA(x[3], t55, t46 + t58);
-    const double t81 = p[0]*t23;
-    const double t82 = p[0]*t27;
-    const double t83 = p[0]*t25;
-    const double t84 = t51 + t56;
-    const double t85 = DERIVE_FMA(t18, t29, DERIVE_FNMA(x[1], t59, t53));
-    const double t86 = DERIVE_FMA(x[2], t59, t47 + t58);
-    const double t87 = t48 + t57;
-    const double t88 = p[0]*t28;
-    const double t89 = p[0]*t30;
+    const double t0 = DERIVE_FMA(x[3], x[3], DERIVE_FMA(x[2], x[2], DERIVE_FMA(x[1], x[1], x[0]*x[0])));
+    const double t1 = 1.0/sqrt(t0);
+    const double t2 = x[0]*t1;
+    const double t3 = x[1]*t1;
+    const double t4 = x[2]*t1;
+    const double t5 = x[3]*t1;
+    const double t6 = p[0]*x[10];
+    const double t7 = u[0] - t6;
+    const double t8 = 0.5*t3;
+    const double t9 = p[0]*x[11];
+    const double t10 = u[1] - t9;
+    const double t11 = 0.5*t4;
+    const double t12 = p[0]*x[12];
+    const double t13 = u[2] - t12;
+    const double t14 = 0.5*t5;
+    const double t15 = 0.5*t2;
+    const double t16 = DERIVE_FNMA(p[0], x[14], u[4]);
+    const double t17 = 2.0*t2;
+    const double t18 = t17*t5;
+    const double t19 = DERIVE_FMA(2.0, t3*t4, -t18);
+    const double t20 = DERIVE_FNMA(p[0], x[15], u[5]);
+    const double t21 = t17*t4;
+    const double t22 = 2.0*t3;
+    const double t23 = DERIVE_FMA(t22, t5, t21);
+    const double t24 = DERIVE_FNMA(p[0], x[13], u[3]);
+    const double t25 = t4*t4;
+    const double t26 = 2.0*t25;
+    const double t27 = t5*t5;
+    const double t28 = DERIVE_FMA(2.0, t27, (-1.0));
+    const double t30 = -t26 - t28;
+    const double t31 = DERIVE_FMA(t22, t4, t18);
+    const double t32 = t17*t3;
+    const double t33 = DERIVE_FMA(2.0, t4*t5, -t32);
+    const double t34 = t3*t3;
+    const double t35 = 2.0*t34;
+    const double t36 = -t28 - t35;
+    const double t37 = DERIVE_FMA(2.0, t3*t5, -t21);
+    const double t38 = 2.0*t5;
+    const double t39 = DERIVE_FMA(t38, t4, t32);
+    const double t40 = 1.0 - t26 - t35;
+    const double t41 = DERIVE_FMA(0.5, t6, (-0.5)*u[0]);
+    const double t42 = DERIVE_FMA(0.5, t9, (-0.5)*u[1]);
+    const double t43 = DERIVE_FMA(0.5, t12, (-0.5)*u[2]);
+    const double t44 = p[0]*t8;
+    const double t45 = p[0]*t11;
+    const double t46 = p[0]*t14;
+    const double t47 = -t8;
+    const double t48 = -t11;
+    const double t49 = -t14;
+    const double t50 = -t41;
+    const double t51 = -t43;
+    const double t52 = -(p[0]*t15);
+    const double t53 = -t42;
+    const double t54 = 2.0*t4;
+    const double t55 = t20*t54;
+    const double t56 = -(t16*t38);
+    const double t57 = t16*t54;
+    const double t58 = t20*t38;
+    const double t59 = t17*t20;
+    const double t60 = t16*t22;
+    const double t61 = 4.0*t24;
+    const double t62 = t16*t17;
+    const double t63 = t20*t22;
+    const double t64 = 4.0*t16;
+    const double t65 = -(t24*t54);
+    const double t66 = t22*t24;
+    const double t67 = t17*t24;
+    const double t68 = 4.0*t20;
+    const double t69 = DERIVE_FNMA(t7, t8, DERIVE_FNMA(t13, t14, DERIVE_FNMA(t10, t11, t2)));
+    const double t70 = DERIVE_FMA(t15, t7, DERIVE_FMA(t11, t13, DERIVE_FNMA(t10, t14, t3)));
+    const double t71 = DERIVE_FMA(t14, t7, DERIVE_FNMA(t13, t8, DERIVE_FMA(t10, t15, t4)));
+    const double t72 = DERIVE_FMA(t13, t15, DERIVE_FNMA(t11, t7, DERIVE_FMA(t10, t8, t5)));
+    const double t73 = DERIVE_FMA(t24, t30, DERIVE_FMA(t20, t23, DERIVE_FMA(t16, t19, x[4])));
+    const double t74 = DERIVE_FMA(t24, t31, DERIVE_FMA(t20, t33, DERIVE_FMA(t16, t36, x[5])));
+    const double t75 = DERIVE_FMA(t24, t37, DERIVE_FMA(t20, t40, DERIVE_FMA(t16, t39, DERIVE_FMA(9.80665, p[0], x[6]))));
+    const double t76 = DERIVE_FMA(p[0], x[4], x[7]);
+    const double t77 = DERIVE_FMA(p[0], x[5], x[8]);
+    const double t78 = DERIVE_FMA(p[0], x[6], x[9]);
+    const double t79 = t55 + t56;
+    const double t80 = t57 + t58;
+    const double t81 = DERIVE_FNMA(t4, t61, t59 + t60);
+    const double t82 = DERIVE_FNMA(t5, t61, t63 - t62);
+    const double t83 = p[0]*t30;
+    const double t84 = p[0]*t19;
+    const double t85 = p[0]*t23;
+    const double t86 = DERIVE_FMA(2.0, t24*t5, -t63);
+    const double t87 = DERIVE_FMA(t3, t64, t59 + t65);
+    const double t88 = t58 + t66;
+    const double t89 = DERIVE_FNMA(t5, t64, t55 + t67);
     const double t90 = p[0]*t31;
-    const double t91 = p[0]*p[0];
-    const double t92 = 4e-06*(t38*t91);
-    const double t93 = 4e-06*(t39*t91);
-    const double t94 = 4e-06*(t40*t91);
-    const double t95 = 4e-06*(t9*t91);
-    const double t96 = 4e-06*(t5*t91);
-    const double t97 = 4e-06*(t8*t91);
-    const double t98 = 4e-06*(t2*t91);
-    const double t99 = 0.0025*(t22*t91);
-    const double t100 = 0.0025*(t13*t91);
-    const double t101 = 0.0025*(t17*t91);
-    const double t102 = 0.0025*(t23*t91);
-    const double t103 = 0.0025*(t27*t91);
-    const double t104 = 0.0025*(t25*t91);
-    const double t105 = 0.0025*(t28*t91);
-    const double t106 = 0.0025*(t30*t91);
-    const double t107 = 0.0025*(t31*t91);
-    const double t108 = t38*t92;
-    const double t109 = t39*t93;
-    const double t110 = t40*t94;
-    const double t111 = t108 + t109 + t110;
-    const double t112 = t9*t92;
-    const double t113 = DERIVE_FMA(t5, t94, DERIVE_FMA(t40, t93, t112));
-    const double t114 = DERIVE_FMA(t9, t93, DERIVE_FMA(t8, t92, t38*t94));
-    const double t115 = t9*t94;
-    const double t116 = DERIVE_FMA(t39, t92, DERIVE_FMA(t2, t93, t115));
-    const double t117 = t9*t95;
-    const double t118 = DERIVE_FMA(t5, t96, t110 + t117);
-    const double t119 = DERIVE_FMA(t8, t95, DERIVE_FMA(t38, t96, t115));
-    const double t120 = DERIVE_FMA(t9, t96, DERIVE_FMA(t39, t95, t2*t94));
-    const double t121 = DERIVE_FMA(t8, t97, t108 + t117);
-    const double t122 = DERIVE_FMA(t39, t97, DERIVE_FMA(t2, t95, t112));
-    const double t123 = DERIVE_FMA(t2, t98, t109 + t117);
-    const double t124 = DERIVE_FMA(t22, t99, DERIVE_FMA(t101, t17, t100*t13));
-    const double t125 = DERIVE_FMA(t23, t99, DERIVE_FMA(t101, t25, t100*t27));
-    const double t126 = DERIVE_FMA(t28, t99, DERIVE_FMA(t101, t31, t100*t30));
-    const double t127 = DERIVE_FMA(t104, t25, DERIVE_FMA(t103, t27, t102*t23));
-    const double t128 = DERIVE_FMA(t104, t31, DERIVE_FMA(t103, t30, t102*t28));
-    const double t129 = DERIVE_FMA(t107, t31, DERIVE_FMA(t106, t30, t105*t28));
-    const double t130 = 1e-10*p[0];
-    const double t131 = 1e-08*p[0];
-    const double t132 = 0.01*p[0];
-    const double t133 = -t36;
-    const double t134 = -t37;
-    const double t135 = -t35;
-    const double t136 = -t74;
-    const double t137 = -t75;
-    const double t138 = -t76;
-    const double t139 = -t78;
-    const double t140 = -t81;
-    const double t141 = -t82;
-    const double t142 = -t83;
-    const double t143 = -t86;
-    const double t144 = -t88;
-    const double t145 = -t89;
-    const double t146 = -t90;
+    const double t91 = p[0]*t36;
+    const double t92 = p[0]*t33;
+    const double t93 = t60 + t65;
+    const double t94 = DERIVE_FNMA(t3, t68, DERIVE_FMA(t24, t38, t62));
+    const double t95 = DERIVE_FMA(t4, t68, t56 + t67);
+    const double t96 = t57 + t66;
+    const double t97 = p[0]*t37;
+    const double t98 = p[0]*t39;
+    const double t99 = p[0]*t40;
+    const double t100 = p[0]*p[0];
+    const double t101 = 4e-06*(t100*t47);
+    const double t102 = 4e-06*(t100*t48);
+    const double t103 = 4e-06*(t100*t49);
+    const double t104 = 4e-06*(t100*t15);
+    const double t105 = 4e-06*(t100*t11);
+    const double t106 = 4e-06*(t100*t14);
+    const double t107 = t101*t15;
+    const double t108 = DERIVE_FMA(t103, t11, DERIVE_FMA(t102, t49, t107));
+    const double t109 = DERIVE_FMA(t103, t47, DERIVE_FMA(t102, t15, t101*t14));
+    const double t110 = t103*t15;
+    const double t111 = DERIVE_FMA(t102, t8, DERIVE_FMA(t101, t48, t110));
+    const double t112 = DERIVE_FMA(t105, t47, DERIVE_FMA(t104, t14, t110));
+    const double t113 = DERIVE_FMA(t105, t15, DERIVE_FMA(t104, t48, t103*t8));
+    const double t114 = DERIVE_FMA(t106, t48, DERIVE_FMA(t104, t8, t107));
+    const double t115 = 1e-06*(t100*DERIVE_FNMA(t2, t2, 1.0));
+    const double t119 = 0.0025*t100;
+    const double t120 = 1e-10*p[0];
+    const double t121 = 1e-08*p[0];
+    const double t122 = 0.01*p[0];
+    const double t123 = -t45;
+    const double t124 = -t46;
+    const double t125 = -t44;
+    const double t126 = -t83;
+    const double t127 = -t84;
+    const double t128 = -t85;
+    const double t129 = -t87;
+    const double t130 = -t90;
+    const double t131 = -t91;
+    const double t132 = -t92;
+    const double t133 = -t95;
+    const double t134 = -t97;
+    const double t135 = -t98;
+    const double t136 = -t99;
     #if DERIVE_VECTOR
-    const derive_vd v_t147_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[24], P[25], P[26], P[27]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t147_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t147_0);
-    const derive_vd v_t147_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t147_1);
-    const derive_vd v_t147_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t147_2);
-    const derive_vd v_t147_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t147_3);
-    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t147_4);
-    const double t147 = v_t147[0];
-    const double t148 = v_t147[1];
-    const double t149 = v_t147[2];
-    const double t150 = v_t147[3];
+    const derive_vd v_t137_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[24], P[25], P[26], P[27]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t137_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t137_0);
+    const derive_vd v_t137_2 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t137_1);
+    const derive_vd v_t137_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t137_2);
+    const derive_vd v_t137_4 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t137_3);
+    const derive_vd v_t137 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t137_4);
+    const double t137 = v_t137[0];
+    const double t138 = v_t137[1];
+    const double t139 = v_t137[2];
+    const double t140 = v_t137[3];
     #else
-    const double t147 = DERIVE_FMA(t37, P[288], DERIVE_FMA(t36, P[264], DERIVE_FMA(t35, P[240], DERIVE_FMA(t34, P[72], DERIVE_FMA(t33, P[48], DERIVE_FMA(t32, P[24], P[0]))))));
-    const double t148 = DERIVE_FMA(t37, P[289], DERIVE_FMA(t36, P[265], DERIVE_FMA(t35, P[241], DERIVE_FMA(t34, P[73], DERIVE_FMA(t33, P[49], DERIVE_FMA(t32, P[25], P[1]))))));
-    const double t149 = DERIVE_FMA(t37, P[290], DERIVE_FMA(t36, P[266], DERIVE_FMA(t35, P[242], DERIVE_FMA(t34, P[74], DERIVE_FMA(t33, P[50], DERIVE_FMA(t32, P[26], P[2]))))));
-    const double t150 = DERIVE_FMA(t37, P[291], DERIVE_FMA(t36, P[267], DERIVE_FMA(t35, P[243], DERIVE_FMA(t34, P[75], DERIVE_FMA(t33, P[51], DERIVE_FMA(t32, P[27], P[3]))))));
+    const double t137 = DERIVE_FMA(t46, P[288], DERIVE_FMA(t45, P[264], DERIVE_FMA(t44, P[240], DERIVE_FMA(t43, P[72], DERIVE_FMA(t42, P[48], DERIVE_FMA(t41, P[24], P[0]))))));
+    const double t138 = DERIVE_FMA(t46, P[289], DERIVE_FMA(t45, P[265], DERIVE_FMA(t44, P[241], DERIVE_FMA(t43, P[73], DERIVE_FMA(t42, P[49], DERIVE_FMA(t41, P[25], P[1]))))));
+    const double t139 = DERIVE_FMA(t46, P[290], DERIVE_FMA(t45, P[266], DERIVE_FMA(t44, P[242], DERIVE_FMA(t43, P[74], DERIVE_FMA(t42, P[50], DERIVE_FMA(t41, P[26], P[2]))))));
+    const double t140 = DERIVE_FMA(t46, P[291], DERIVE_FMA(t45, P[267], DERIVE_FMA(t44, P[243], DERIVE_FMA(t43, P[75], DERIVE_FMA(t42, P[51], DERIVE_FMA(t41, P[27], P[3]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t151_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[32], P[33], P[34], P[35]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t151_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t151_0);
-    const derive_vd v_t151_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t151_1);
-    const derive_vd v_t151_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t151_2);
-    const derive_vd v_t151_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t151_3);
-    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t151_4);
-    const double t153 = v_t151[2];
-    const double t154 = v_t151[3];
+    const derive_vd v_t141_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[32], P[33], P[34], P[35]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t141_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t141_0);
+    const derive_vd v_t141_2 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t141_1);
+    const derive_vd v_t141_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t141_2);
+    const derive_vd v_t141_4 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t141_3);
+    const derive_vd v_t141 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t141_4);
+    const double t143 = v_t141[2];
+    const double t144 = v_t141[3];
     #else
-    const double t153 = DERIVE_FMA(t37, P[298], DERIVE_FMA(t36, P[274], DERIVE_FMA(t35, P[250], DERIVE_FMA(t34, P[82], DERIVE_FMA(t33, P[58], DERIVE_FMA(t32, P[34], P[10]))))));
-    const double t154 = DERIVE_FMA(t37, P[299], DERIVE_FMA(t36, P[275], DERIVE_FMA(t35, P[251], DERIVE_FMA(t34, P[83], DERIVE_FMA(t33, P[59], DERIVE_FMA(t32, P[35], P[11]))))));
+    const double t143 = DERIVE_FMA(t46, P[298], DERIVE_FMA(t45, P[274], DERIVE_FMA(t44, P[250], DERIVE_FMA(t43, P[82], DERIVE_FMA(t42, P[58], DERIVE_FMA(t41, P[34], P[10]))))));
+    const double t144 = DERIVE_FMA(t46, P[299], DERIVE_FMA(t45, P[275], DERIVE_FMA(t44, P[251], DERIVE_FMA(t43, P[83], DERIVE_FMA(t42, P[59], DERIVE_FMA(t41, P[35], P[11]))))));
+    P_new[10] = t143;
+    P_new[240] = t143;
+    P_new[11] = t144;
+    P_new[264] = t144;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t155_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[36], P[37], P[38], P[39]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t155_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t155_0);
-    const derive_vd v_t155_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t155_1);
-    const derive_vd v_t155_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t155_2);
-    const derive_vd v_t155_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t155_3);
-    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t155_4);
-    const double t155 = v_t155[0];
+    const derive_vd v_t145_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[36], P[37], P[38], P[39]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t145_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t145_0);
+    const derive_vd v_t145_2 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t145_1);
+    const derive_vd v_t145_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t145_2);
+    const derive_vd v_t145_4 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t145_3);
+    const derive_vd v_t145 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t145_4);
+    const double t145 = v_t145[0];
     #else
-    const double t155 = DERIVE_FMA(t37, P[300], DERIVE_FMA(t36, P[276], DERIVE_FMA(t35, P[252], DERIVE_FMA(t34, P[84], DERIVE_FMA(t33, P[60], DERIVE_FMA(t32, P[36], P[12]))))));
-    const double t156 = DERIVE_FMA(t37, P[301], DERIVE_FMA(t36, P[277], DERIVE_FMA(t35, P[253], DERIVE_FMA(t34, P[85], DERIVE_FMA(t33, P[61], DERIVE_FMA(t32, P[37], P[13]))))));
-    const double t157 = DERIVE_FMA(t37, P[302], DERIVE_FMA(t36, P[278], DERIVE_FMA(t35, P[254], DERIVE_FMA(t34, P[86], DERIVE_FMA(t33, P[62], DERIVE_FMA(t32, P[38], P[14]))))));
-    const double t158 = DERIVE_FMA(t37, P[303], DERIVE_FMA(t36, P[279], DERIVE_FMA(t35, P[255], DERIVE_FMA(t34, P[87], DERIVE_FMA(t33, P[63], DERIVE_FMA(t32, P[39], P[15]))))));
+    const double t145 = DERIVE_FMA(t46, P[300], DERIVE_FMA(t45, P[276], DERIVE_FMA(t44, P[252], DERIVE_FMA(t43, P[84], DERIVE_FMA(t42, P[60], DERIVE_FMA(t41, P[36], P[12]))))));
+    const double t146 = DERIVE_FMA(t46, P[301], DERIVE_FMA(t45, P[277], DERIVE_FMA(t44, P[253], DERIVE_FMA(t43, P[85], DERIVE_FMA(t42, P[61], DERIVE_FMA(t41, P[37], P[13]))))));
+    const double t147 = DERIVE_FMA(t46, P[302], DERIVE_FMA(t45, P[278], DERIVE_FMA(t44, P[254], DERIVE_FMA(t43, P[86], DERIVE_FMA(t42, P[62], DERIVE_FMA(t41, P[38], P[14]))))));
+    const double t148 = DERIVE_FMA(t46, P[303], DERIVE_FMA(t45, P[279], DERIVE_FMA(t44, P[255], DERIVE_FMA(t43, P[87], DERIVE_FMA(t42, P[63], DERIVE_FMA(t41, P[39], P[15]))))));
+    P_new[12] = t145;
+    P_new[288] = t145;
+    P_new[13] = t146;
+    P_new[312] = t146;
+    P_new[14] = t147;
+    P_new[336] = t147;
+    P_new[15] = t148;
+    P_new[360] = t148;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t159_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[40], P[41], P[42], P[43]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t159_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t159_0);
-    const derive_vd v_t159_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t159_1);
-    const derive_vd v_t159_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t159_2);
-    const derive_vd v_t159_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t159_3);
-    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t159_4);
+    const derive_vd v_t149_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[40], P[41], P[42], P[43]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t149_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t149_0);
+    const derive_vd v_t149_2 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t149_1);
+    const derive_vd v_t149_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t149_2);
+    const derive_vd v_t149_4 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t149_3);
+    const derive_vd v_t149 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t149_4);
     #else
-    const double t159 = DERIVE_FMA(t37, P[304], DERIVE_FMA(t36, P[280], DERIVE_FMA(t35, P[256], DERIVE_FMA(t34, P[88], DERIVE_FMA(t33, P[64], DERIVE_FMA(t32, P[40], P[16]))))));
-    const double t160 = DERIVE_FMA(t37, P[305], DERIVE_FMA(t36, P[281], DERIVE_FMA(t35, P[257], DERIVE_FMA(t34, P[89], DERIVE_FMA(t33, P[65], DERIVE_FMA(t32, P[41], P[17]))))));
-    const double t161 = DERIVE_FMA(t37, P[306], DERIVE_FMA(t36, P[282], DERIVE_FMA(t35, P[258], DERIVE_FMA(t34, P[90], DERIVE_FMA(t33, P[66], DERIVE_FMA(t32, P[42], P[18]))))));
-    const double t162 = DERIVE_FMA(t37, P[307], DERIVE_FMA(t36, P[283], DERIVE_FMA(t35, P[259], DERIVE_FMA(t34, P[91], DERIVE_FMA(t33, P[67], DERIVE_FMA(t32, P[43], P[19]))))));
+    const double t149 = DERIVE_FMA(t46, P[304], DERIVE_FMA(t45, P[280], DERIVE_FMA(t44, P[256], DERIVE_FMA(t43, P[88], DERIVE_FMA(t42, P[64], DERIVE_FMA(t41, P[40], P[16]))))));
+    const double t150 = DERIVE_FMA(t46, P[305], DERIVE_FMA(t45, P[281], DERIVE_FMA(t44, P[257], DERIVE_FMA(t43, P[89], DERIVE_FMA(t42, P[65], DERIVE_FMA(t41, P[41], P[17]))))));
+    const double t151 = DERIVE_FMA(t46, P[306], DERIVE_FMA(t45, P[282], DERIVE_FMA(t44, P[258], DERIVE_FMA(t43, P[90], DERIVE_FMA(t42, P[66], DERIVE_FMA(t41, P[42], P[18]))))));
+    const double t152 = DERIVE_FMA(t46, P[307], DERIVE_FMA(t45, P[283], DERIVE_FMA(t44, P[259], DERIVE_FMA(t43, P[91], DERIVE_FMA(t42, P[67], DERIVE_FMA(t41, P[43], P[19]))))));
+    P_new[16] = t149;
+    P_new[384] = t149;
+    P_new[17] = t150;
+    P_new[408] = t150;
+    P_new[18] = t151;
+    P_new[432] = t151;
+    P_new[19] = t152;
+    P_new[456] = t152;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t163_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[44], P[45], P[46], P[47]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t163_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t163_0);
-    const derive_vd v_t163_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t163_1);
-    const derive_vd v_t163_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t163_2);
-    const derive_vd v_t163_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t163_3);
-    const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t163_4);
+    const derive_vd v_t153_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[44], P[45], P[46], P[47]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
+    const derive_vd v_t153_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t153_0);
+    const derive_vd v_t153_2 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t153_1);
+    const derive_vd v_t153_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t153_2);
+    const derive_vd v_t153_4 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t153_3);
+    const derive_vd v_t153 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t153_4);
     #else
-    const double t163 = DERIVE_FMA(t37, P[308], DERIVE_FMA(t36, P[284], DERIVE_FMA(t35, P[260], DERIVE_FMA(t34, P[92], DERIVE_FMA(t33, P[68], DERIVE_FMA(t32, P[44], P[20]))))));
-    const double t164 = DERIVE_FMA(t37, P[309], DERIVE_FMA(t36, P[285], DERIVE_FMA(t35, P[261], DERIVE_FMA(t34, P[93], DERIVE_FMA(t33, P[69], DERIVE_FMA(t32, P[45], P[21]))))));
-    const double t165 = DERIVE_FMA(t37, P[310], DERIVE_FMA(t36, P[286], DERIVE_FMA(t35, P[262], DERIVE_FMA(t34, P[94], DERIVE_FMA(t33, P[70], DERIVE_FMA(t32, P[46], P[22]))))));
-    const double t166 = DERIVE_FMA(t37, P[311], DERIVE_FMA(t36, P[287], DERIVE_FMA(t35, P[263], DERIVE_FMA(t34, P[95], DERIVE_FMA(t33, P[71], DERIVE_FMA(t32, P[47], P[23]))))));
+    const double t153 = DERIVE_FMA(t46, P[308], DERIVE_FMA(t45, P[284], DERIVE_FMA(t44, P[260], DERIVE_FMA(t43, P[92], DERIVE_FMA(t42, P[68], DERIVE_FMA(t41, P[44], P[20]))))));
+    const double t154 = DERIVE_FMA(t46, P[309], DERIVE_FMA(t45, P[285], DERIVE_FMA(t44, P[261], DERIVE_FMA(t43, P[93], DERIVE_FMA(t42, P[69], DERIVE_FMA(t41, P[45], P[21]))))));
+    const double t155 = DERIVE_FMA(t46, P[310], DERIVE_FMA(t45, P[286], DERIVE_FMA(t44, P[262], DERIVE_FMA(t43, P[94], DERIVE_FMA(t42, P[70], DERIVE_FMA(t41, P[46], P[22]))))));
+    const double t156 = DERIVE_FMA(t46, P[311], DERIVE_FMA(t45, P[287], DERIVE_FMA(t44, P[263], DERIVE_FMA(t43, P[95], DERIVE_FMA(t42, P[71], DERIVE_FMA(t41, P[47], P[23]))))));
+    P_new[20] = t153;
+    P_new[480] = t153;
+    P_new[21] = t154;
+    P_new[504] = t154;
+    P_new[22] = t155;
+    P_new[528] = t155;
+    P_new[23] = t156;
+    P_new[552] = t156;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t167_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t167_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t167_0);
-    const derive_vd v_t167_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t167_1);
-    const derive_vd v_t167_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t167_2);
-    const derive_vd v_t167_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t167_3);
-    const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t167_4);
-    const double t167 = v_t167[0];
-    const double t168 = v_t167[1];
-    const double t169 = v_t167[2];
-    const double t170 = v_t167[3];
+    const derive_vd v_t157_0 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
+    const derive_vd v_t157_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t157_0);
+    const derive_vd v_t157_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t157_1);
+    const derive_vd v_t157_3 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t157_2);
+    const derive_vd v_t157_4 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t157_3);
+    const derive_vd v_t157 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t157_4);
+    const double t157 = v_t157[0];
+    const double t158 = v_t157[1];
+    const double t159 = v_t157[2];
+    const double t160 = v_t157[3];
     #else
-    const double t167 = DERIVE_FMA(t133, P[288], DERIVE_FMA(t37, P[264], DERIVE_FMA(t43, P[240], DERIVE_FMA(t33, P[72], DERIVE_FMA(t42, P[48], DERIVE_FMA(t41, P[0], P[24]))))));
-    const double t168 = DERIVE_FMA(t133, P[289], DERIVE_FMA(t37, P[265], DERIVE_FMA(t43, P[241], DERIVE_FMA(t33, P[73], DERIVE_FMA(t42, P[49], DERIVE_FMA(t41, P[1], P[25]))))));
-    const double t169 = DERIVE_FMA(t133, P[290], DERIVE_FMA(t37, P[266], DERIVE_FMA(t43, P[242], DERIVE_FMA(t33, P[74], DERIVE_FMA(t42, P[50], DERIVE_FMA(t41, P[2], P[26]))))));
-    const double t170 = DERIVE_FMA(t133, P[291], DERIVE_FMA(t37, P[267], DERIVE_FMA(t43, P[243], DERIVE_FMA(t33, P[75], DERIVE_FMA(t42, P[51], DERIVE_FMA(t41, P[3], P[27]))))));
+    const double t157 = DERIVE_FMA(t123, P[288], DERIVE_FMA(t46, P[264], DERIVE_FMA(t52, P[240], DERIVE_FMA(t42, P[72], DERIVE_FMA(t51, P[48], DERIVE_FMA(t50, P[0], P[24]))))));
+    const double t158 = DERIVE_FMA(t123, P[289], DERIVE_FMA(t46, P[265], DERIVE_FMA(t52, P[241], DERIVE_FMA(t42, P[73], DERIVE_FMA(t51, P[49], DERIVE_FMA(t50, P[1], P[25]))))));
+    const double t159 = DERIVE_FMA(t123, P[290], DERIVE_FMA(t46, P[266], DERIVE_FMA(t52, P[242], DERIVE_FMA(t42, P[74], DERIVE_FMA(t51, P[50], DERIVE_FMA(t50, P[2], P[26]))))));
+    const double t160 = DERIVE_FMA(t123, P[291], DERIVE_FMA(t46, P[267], DERIVE_FMA(t52, P[243], DERIVE_FMA(t42, P[75], DERIVE_FMA(t51, P[51], DERIVE_FMA(t50, P[3], P[27]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t171_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t171_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t171_0);
-    const derive_vd v_t171_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t171_1);
-    const derive_vd v_t171_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t171_2);
-    const derive_vd v_t171_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t171_3);
-    const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t171_4);
-    const double t173 = v_t171[2];
-    const double t174 = v_t171[3];
+    const derive_vd v_t161_0 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
+    const derive_vd v_t161_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t161_0);
+    const derive_vd v_t161_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t161_1);
+    const derive_vd v_t161_3 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t161_2);
+    const derive_vd v_t161_4 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t161_3);
+    const derive_vd v_t161 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t161_4);
+    const double t163 = v_t161[2];
+    const double t164 = v_t161[3];
     #else
-    const double t173 = DERIVE_FMA(t133, P[298], DERIVE_FMA(t37, P[274], DERIVE_FMA(t43, P[250], DERIVE_FMA(t33, P[82], DERIVE_FMA(t42, P[58], DERIVE_FMA(t41, P[10], P[34]))))));
-    const double t174 = DERIVE_FMA(t133, P[299], DERIVE_FMA(t37, P[275], DERIVE_FMA(t43, P[251], DERIVE_FMA(t33, P[83], DERIVE_FMA(t42, P[59], DERIVE_FMA(t41, P[11], P[35]))))));
+    const double t163 = DERIVE_FMA(t123, P[298], DERIVE_FMA(t46, P[274], DERIVE_FMA(t52, P[250], DERIVE_FMA(t42, P[82], DERIVE_FMA(t51, P[58], DERIVE_FMA(t50, P[10], P[34]))))));
+    const double t164 = DERIVE_FMA(t123, P[299], DERIVE_FMA(t46, P[275], DERIVE_FMA(t52, P[251], DERIVE_FMA(t42, P[83], DERIVE_FMA(t51, P[59], DERIVE_FMA(t50, P[11], P[35]))))));
+    P_new[34] = t163;
+    P_new[241] = t163;
+    P_new[35] = t164;
+    P_new[265] = t164;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t175_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
-    const derive_vd v_t175_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t175_0);
-    const derive_vd v_t175_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t175_1);
-    const derive_vd v_t175_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t175_2);
-    const derive_vd v_t175_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t175_3);
-    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t175_4);
-    const double t175 = v_t175[0];
+    const derive_vd v_t165_0 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    const derive_vd v_t165_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t165_0);
+    const derive_vd v_t165_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t165_1);
+    const derive_vd v_t165_3 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t165_2);
+    const derive_vd v_t165_4 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t165_3);
+    const derive_vd v_t165 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t165_4);
+    const double t165 = v_t165[0];
     #else
-    const double t175 = DERIVE_FMA(t133, P[300], DERIVE_FMA(t37, P[276], DERIVE_FMA(t43, P[252], DERIVE_FMA(t33, P[84], DERIVE_FMA(t42, P[60], DERIVE_FMA(t41, P[12], P[36]))))));
-    const double t176 = DERIVE_FMA(t133, P[301], DERIVE_FMA(t37, P[277], DERIVE_FMA(t43, P[253], DERIVE_FMA(t33, P[85], DERIVE_FMA(t42, P[61], DERIVE_FMA(t41, P[13], P[37]))))));
-    const double t177 = DERIVE_FMA(t133, P[302], DERIVE_FMA(t37, P[278], DERIVE_FMA(t43, P[254], DERIVE_FMA(t33, P[86], DERIVE_FMA(t42, P[62], DERIVE_FMA(t41, P[14], P[38]))))));
-    const double t178 = DERIVE_FMA(t133, P[303], DERIVE_FMA(t37, P[279], DERIVE_FMA(t43, P[255], DERIVE_FMA(t33, P[87], DERIVE_FMA(t42, P[63], DERIVE_FMA(t41, P[15], P[39]))))));
+    const double t165 = DERIVE_FMA(t123, P[300], DERIVE_FMA(t46, P[276], DERIVE_FMA(t52, P[252], DERIVE_FMA(t42, P[84], DERIVE_FMA(t51, P[60], DERIVE_FMA(t50, P[12], P[36]))))));
+    const double t166 = DERIVE_FMA(t123, P[301], DERIVE_FMA(t46, P[277], DERIVE_FMA(t52, P[253], DERIVE_FMA(t42, P[85], DERIVE_FMA(t51, P[61], DERIVE_FMA(t50, P[13], P[37]))))));
+    const double t167 = DERIVE_FMA(t123, P[302], DERIVE_FMA(t46, P[278], DERIVE_FMA(t52, P[254], DERIVE_FMA(t42, P[86], DERIVE_FMA(t51, P[62], DERIVE_FMA(t50, P[14], P[38]))))));
+    const double t168 = DERIVE_FMA(t123, P[303], DERIVE_FMA(t46, P[279], DERIVE_FMA(t52, P[255], DERIVE_FMA(t42, P[87], DERIVE_FMA(t51, P[63], DERIVE_FMA(t50, P[15], P[39]))))));
+    P_new[36] = t165;
+    P_new[289] = t165;
+    P_new[37] = t166;
+    P_new[313] = t166;
+    P_new[38] = t167;
+    P_new[337] = t167;
+    P_new[39] = t168;
+    P_new[361] = t168;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t179_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t179_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t179_0);
-    const derive_vd v_t179_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t179_1);
-    const derive_vd v_t179_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t179_2);
-    const derive_vd v_t179_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t179_3);
-    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t179_4);
+    const derive_vd v_t169_0 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t169_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t169_0);
+    const derive_vd v_t169_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t169_1);
+    const derive_vd v_t169_3 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t169_2);
+    const derive_vd v_t169_4 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t169_3);
+    const derive_vd v_t169 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t169_4);
     #else
-    const double t179 = DERIVE_FMA(t133, P[304], DERIVE_FMA(t37, P[280], DERIVE_FMA(t43, P[256], DERIVE_FMA(t33, P[88], DERIVE_FMA(t42, P[64], DERIVE_FMA(t41, P[16], P[40]))))));
-    const double t180 = DERIVE_FMA(t133, P[305], DERIVE_FMA(t37, P[281], DERIVE_FMA(t43, P[257], DERIVE_FMA(t33, P[89], DERIVE_FMA(t42, P[65], DERIVE_FMA(t41, P[17], P[41]))))));
-    const double t181 = DERIVE_FMA(t133, P[306], DERIVE_FMA(t37, P[282], DERIVE_FMA(t43, P[258], DERIVE_FMA(t33, P[90], DERIVE_FMA(t42, P[66], DERIVE_FMA(t41, P[18], P[42]))))));
-    const double t182 = DERIVE_FMA(t133, P[307], DERIVE_FMA(t37, P[283], DERIVE_FMA(t43, P[259], DERIVE_FMA(t33, P[91], DERIVE_FMA(t42, P[67], DERIVE_FMA(t41, P[19], P[43]))))));
+    const double t169 = DERIVE_FMA(t123, P[304], DERIVE_FMA(t46, P[280], DERIVE_FMA(t52, P[256], DERIVE_FMA(t42, P[88], DERIVE_FMA(t51, P[64], DERIVE_FMA(t50, P[16], P[40]))))));
+    const double t170 = DERIVE_FMA(t123, P[305], DERIVE_FMA(t46, P[281], DERIVE_FMA(t52, P[257], DERIVE_FMA(t42, P[89], DERIVE_FMA(t51, P[65], DERIVE_FMA(t50, P[17], P[41]))))));
+    const double t171 = DERIVE_FMA(t123, P[306], DERIVE_FMA(t46, P[282], DERIVE_FMA(t52, P[258], DERIVE_FMA(t42, P[90], DERIVE_FMA(t51, P[66], DERIVE_FMA(t50, P[18], P[42]))))));
+    const double t172 = DERIVE_FMA(t123, P[307], DERIVE_FMA(t46, P[283], DERIVE_FMA(t52, P[259], DERIVE_FMA(t42, P[91], DERIVE_FMA(t51, P[67], DERIVE_FMA(t50, P[19], P[43]))))));
+    P_new[40] = t169;
+    P_new[385] = t169;
+    P_new[41] = t170;
+    P_new[409] = t170;
+    P_new[42] = t171;
+    P_new[433] = t171;
+    P_new[43] = t172;
+    P_new[457] = t172;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t183_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t183_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t183_0);
-    const derive_vd v_t183_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t183_1);
-    const derive_vd v_t183_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t183_2);
-    const derive_vd v_t183_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t183_3);
-    const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t183_4);
+    const derive_vd v_t173_0 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t173_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t173_0);
+    const derive_vd v_t173_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t173_1);
+    const derive_vd v_t173_3 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t173_2);
+    const derive_vd v_t173_4 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t173_3);
+    const derive_vd v_t173 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t173_4);
     #else
-    const double t183 = DERIVE_FMA(t133, P[308], DERIVE_FMA(t37, P[284], DERIVE_FMA(t43, P[260], DERIVE_FMA(t33, P[92], DERIVE_FMA(t42, P[68], DERIVE_FMA(t41, P[20], P[44]))))));
-    const double t184 = DERIVE_FMA(t133, P[309], DERIVE_FMA(t37, P[285], DERIVE_FMA(t43, P[261], DERIVE_FMA(t33, P[93], DERIVE_FMA(t42, P[69], DERIVE_FMA(t41, P[21], P[45]))))));
-    const double t185 = DERIVE_FMA(t133, P[310], DERIVE_FMA(t37, P[286], DERIVE_FMA(t43, P[262], DERIVE_FMA(t33, P[94], DERIVE_FMA(t42, P[70], DERIVE_FMA(t41, P[22], P[46]))))));
-    const double t186 = DERIVE_FMA(t133, P[311], DERIVE_FMA(t37, P[287], DERIVE_FMA(t43, P[263], DERIVE_FMA(t33, P[95], DERIVE_FMA(t42, P[71], DERIVE_FMA(t41, P[23], P[47]))))));
+    const double t173 = DERIVE_FMA(t123, P[308], DERIVE_FMA(t46, P[284], DERIVE_FMA(t52, P[260], DERIVE_FMA(t42, P[92], DERIVE_FMA(t51, P[68], DERIVE_FMA(t50, P[20], P[44]))))));
+    const double t174 = DERIVE_FMA(t123, P[309], DERIVE_FMA(t46, P[285], DERIVE_FMA(t52, P[261], DERIVE_FMA(t42, P[93], DERIVE_FMA(t51, P[69], DERIVE_FMA(t50, P[21], P[45]))))));
+    const double t175 = DERIVE_FMA(t123, P[310], DERIVE_FMA(t46, P[286], DERIVE_FMA(t52, P[262], DERIVE_FMA(t42, P[94], DERIVE_FMA(t51, P[70], DERIVE_FMA(t50, P[22], P[46]))))));
+    const double t176 = DERIVE_FMA(t123, P[311], DERIVE_FMA(t46, P[287], DERIVE_FMA(t52, P[263], DERIVE_FMA(t42, P[95], DERIVE_FMA(t51, P[71], DERIVE_FMA(t50, P[23], P[47]))))));
+    P_new[44] = t173;
+    P_new[481] = t173;
+    P_new[45] = t174;
+    P_new[505] = t174;
+    P_new[46] = t175;
+    P_new[529] = t175;
+    P_new[47] = t176;
+    P_new[553] = t176;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t187_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t187_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t187_0);
-    const derive_vd v_t187_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t187_1);
-    const derive_vd v_t187_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t187_2);
-    const derive_vd v_t187_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t187_3);
-    const derive_vd v_t187 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t187_4);
-    const double t187 = v_t187[0];
-    const double t188 = v_t187[1];
-    const double t189 = v_t187[2];
-    const double t190 = v_t187[3];
+    const derive_vd v_t177_0 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
+    const derive_vd v_t177_1 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t177_0);
+    const derive_vd v_t177_2 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t177_1);
+    const derive_vd v_t177_3 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t177_2);
+    const derive_vd v_t177_4 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t177_3);
+    const derive_vd v_t177 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t177_4);
+    const double t177 = v_t177[0];
+    const double t178 = v_t177[1];
+    const double t179 = v_t177[2];
+    const double t180 = v_t177[3];
     #else
-    const double t187 = DERIVE_FMA(t35, P[288], DERIVE_FMA(t43, P[264], DERIVE_FMA(t134, P[240], DERIVE_FMA(t41, P[72], DERIVE_FMA(t34, P[24], DERIVE_FMA(t44, P[0], P[48]))))));
-    const double t188 = DERIVE_FMA(t35, P[289], DERIVE_FMA(t43, P[265], DERIVE_FMA(t134, P[241], DERIVE_FMA(t41, P[73], DERIVE_FMA(t34, P[25], DERIVE_FMA(t44, P[1], P[49]))))));
-    const double t189 = DERIVE_FMA(t35, P[290], DERIVE_FMA(t43, P[266], DERIVE_FMA(t134, P[242], DERIVE_FMA(t41, P[74], DERIVE_FMA(t34, P[26], DERIVE_FMA(t44, P[2], P[50]))))));
-    const double t190 = DERIVE_FMA(t35, P[291], DERIVE_FMA(t43, P[267], DERIVE_FMA(t134, P[243], DERIVE_FMA(t41, P[75], DERIVE_FMA(t34, P[27], DERIVE_FMA(t44, P[3], P[51]))))));
+    const double t177 = DERIVE_FMA(t44, P[288], DERIVE_FMA(t52, P[264], DERIVE_FMA(t124, P[240], DERIVE_FMA(t50, P[72], DERIVE_FMA(t43, P[24], DERIVE_FMA(t53, P[0], P[48]))))));
+    const double t178 = DERIVE_FMA(t44, P[289], DERIVE_FMA(t52, P[265], DERIVE_FMA(t124, P[241], DERIVE_FMA(t50, P[73], DERIVE_FMA(t43, P[25], DERIVE_FMA(t53, P[1], P[49]))))));
+    const double t179 = DERIVE_FMA(t44, P[290], DERIVE_FMA(t52, P[266], DERIVE_FMA(t124, P[242], DERIVE_FMA(t50, P[74], DERIVE_FMA(t43, P[26], DERIVE_FMA(t53, P[2], P[50]))))));
+    const double t180 = DERIVE_FMA(t44, P[291], DERIVE_FMA(t52, P[267], DERIVE_FMA(t124, P[243], DERIVE_FMA(t50, P[75], DERIVE_FMA(t43, P[27], DERIVE_FMA(t53, P[3], P[51]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t191_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t191_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t191_0);
-    const derive_vd v_t191_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t191_1);
-    const derive_vd v_t191_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t191_2);
-    const derive_vd v_t191_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t191_3);
-    const derive_vd v_t191 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t191_4);
-    const double t193 = v_t191[2];
-    const double t194 = v_t191[3];
+    const derive_vd v_t181_0 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t181_1 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t181_0);
+    const derive_vd v_t181_2 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t181_1);
+    const derive_vd v_t181_3 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t181_2);
+    const derive_vd v_t181_4 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t181_3);
+    const derive_vd v_t181 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t181_4);
+    const double t183 = v_t181[2];
+    const double t184 = v_t181[3];
     #else
-    const double t193 = DERIVE_FMA(t35, P[298], DERIVE_FMA(t43, P[274], DERIVE_FMA(t134, P[250], DERIVE_FMA(t41, P[82], DERIVE_FMA(t34, P[34], DERIVE_FMA(t44, P[10], P[58]))))));
-    const double t194 = DERIVE_FMA(t35, P[299], DERIVE_FMA(t43, P[275], DERIVE_FMA(t134, P[251], DERIVE_FMA(t41, P[83], DERIVE_FMA(t34, P[35], DERIVE_FMA(t44, P[11], P[59]))))));
+    const double t183 = DERIVE_FMA(t44, P[298], DERIVE_FMA(t52, P[274], DERIVE_FMA(t124, P[250], DERIVE_FMA(t50, P[82], DERIVE_FMA(t43, P[34], DERIVE_FMA(t53, P[10], P[58]))))));
+    const double t184 = DERIVE_FMA(t44, P[299], DERIVE_FMA(t52, P[275], DERIVE_FMA(t124, P[251], DERIVE_FMA(t50, P[83], DERIVE_FMA(t43, P[35], DERIVE_FMA(t53, P[11], P[59]))))));
+    P_new[58] = t183;
+    P_new[242] = t183;
+    P_new[59] = t184;
+    P_new[266] = t184;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t195_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t195_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t195_0);
-    const derive_vd v_t195_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t195_1);
-    const derive_vd v_t195_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t195_2);
-    const derive_vd v_t195_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t195_3);
-    const derive_vd v_t195 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t195_4);
-    const double t195 = v_t195[0];
+    const derive_vd v_t185_0 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t185_1 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t185_0);
+    const derive_vd v_t185_2 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t185_1);
+    const derive_vd v_t185_3 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t185_2);
+    const derive_vd v_t185_4 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t185_3);
+    const derive_vd v_t185 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t185_4);
+    const double t185 = v_t185[0];
     #else
-    const double t195 = DERIVE_FMA(t35, P[300], DERIVE_FMA(t43, P[276], DERIVE_FMA(t134, P[252], DERIVE_FMA(t41, P[84], DERIVE_FMA(t34, P[36], DERIVE_FMA(t44, P[12], P[60]))))));
-    const double t196 = DERIVE_FMA(t35, P[301], DERIVE_FMA(t43, P[277], DERIVE_FMA(t134, P[253], DERIVE_FMA(t41, P[85], DERIVE_FMA(t34, P[37], DERIVE_FMA(t44, P[13], P[61]))))));
-    const double t197 = DERIVE_FMA(t35, P[302], DERIVE_FMA(t43, P[278], DERIVE_FMA(t134, P[254], DERIVE_FMA(t41, P[86], DERIVE_FMA(t34, P[38], DERIVE_FMA(t44, P[14], P[62]))))));
-    const double t198 = DERIVE_FMA(t35, P[303], DERIVE_FMA(t43, P[279], DERIVE_FMA(t134, P[255], DERIVE_FMA(t41, P[87], DERIVE_FMA(t34, P[39], DERIVE_FMA(t44, P[15], P[63]))))));
+    const double t185 = DERIVE_FMA(t44, P[300], DERIVE_FMA(t52, P[276], DERIVE_FMA(t124, P[252], DERIVE_FMA(t50, P[84], DERIVE_FMA(t43, P[36], DERIVE_FMA(t53, P[12], P[60]))))));
+    const double t186 = DERIVE_FMA(t44, P[301], DERIVE_FMA(t52, P[277], DERIVE_FMA(t124, P[253], DERIVE_FMA(t50, P[85], DERIVE_FMA(t43, P[37], DERIVE_FMA(t53, P[13], P[61]))))));
+    const double t187 = DERIVE_FMA(t44, P[302], DERIVE_FMA(t52, P[278], DERIVE_FMA(t124, P[254], DERIVE_FMA(t50, P[86], DERIVE_FMA(t43, P[38], DERIVE_FMA(t53, P[14], P[62]))))));
+    const double t188 = DERIVE_FMA(t44, P[303], DERIVE_FMA(t52, P[279], DERIVE_FMA(t124, P[255], DERIVE_FMA(t50, P[87], DERIVE_FMA(t43, P[39], DERIVE_FMA(t53, P[15], P[63]))))));
+    P_new[60] = t185;
+    P_new[290] = t185;
+    P_new[61] = t186;
+    P_new[314] = t186;
+    P_new[62] = t187;
+    P_new[338] = t187;
+    P_new[63] = t188;
+    P_new[362] = t188;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t199_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
-    const derive_vd v_t199_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t199_0);
-    const derive_vd v_t199_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t199_1);
-    const derive_vd v_t199_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t199_2);
-    const derive_vd v_t199_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t199_3);
-    const derive_vd v_t199 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t199_4);
+    const derive_vd v_t189_0 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t189_1 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t189_0);
+    const derive_vd v_t189_2 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t189_1);
+    const derive_vd v_t189_3 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t189_2);
+    const derive_vd v_t189_4 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t189_3);
+    const derive_vd v_t189 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t189_4);
     #else
-    const double t199 = DERIVE_FMA(t35, P[304], DERIVE_FMA(t43, P[280], DERIVE_FMA(t134, P[256], DERIVE_FMA(t41, P[88], DERIVE_FMA(t34, P[40], DERIVE_FMA(t44, P[16], P[64]))))));
-    const double t200 = DERIVE_FMA(t35, P[305], DERIVE_FMA(t43, P[281], DERIVE_FMA(t134, P[257], DERIVE_FMA(t41, P[89], DERIVE_FMA(t34, P[41], DERIVE_FMA(t44, P[17], P[65]))))));
-    const double t201 = DERIVE_FMA(t35, P[306], DERIVE_FMA(t43, P[282], DERIVE_FMA(t134, P[258], DERIVE_FMA(t41, P[90], DERIVE_FMA(t34, P[42], DERIVE_FMA(t44, P[18], P[66]))))));
-    const double t202 = DERIVE_FMA(t35, P[307], DERIVE_FMA(t43, P[283], DERIVE_FMA(t134, P[259], DERIVE_FMA(t41, P[91], DERIVE_FMA(t34, P[43], DERIVE_FMA(t44, P[19], P[67]))))));
+    const double t189 = DERIVE_FMA(t44, P[304], DERIVE_FMA(t52, P[280], DERIVE_FMA(t124, P[256], DERIVE_FMA(t50, P[88], DERIVE_FMA(t43, P[40], DERIVE_FMA(t53, P[16], P[64]))))));
+    const double t190 = DERIVE_FMA(t44, P[305], DERIVE_FMA(t52, P[281], DERIVE_FMA(t124, P[257], DERIVE_FMA(t50, P[89], DERIVE_FMA(t43, P[41], DERIVE_FMA(t53, P[17], P[65]))))));
+    const double t191 = DERIVE_FMA(t44, P[306], DERIVE_FMA(t52, P[282], DERIVE_FMA(t124, P[258], DERIVE_FMA(t50, P[90], DERIVE_FMA(t43, P[42], DERIVE_FMA(t53, P[18], P[66]))))));
+    const double t192 = DERIVE_FMA(t44, P[307], DERIVE_FMA(t52, P[283], DERIVE_FMA(t124, P[259], DERIVE_FMA(t50, P[91], DERIVE_FMA(t43, P[43], DERIVE_FMA(t53, P[19], P[67]))))));
+    P_new[64] = t189;
+    P_new[386] = t189;
+    P_new[65] = t190;
+    P_new[410] = t190;
+    P_new[66] = t191;
+    P_new[434] = t191;
+    P_new[67] = t192;
+    P_new[458] = t192;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t203_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t203_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t203_0);
-    const derive_vd v_t203_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t203_1);
-    const derive_vd v_t203_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t203_2);
-    const derive_vd v_t203_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t203_3);
-    const derive_vd v_t203 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t203_4);
+    const derive_vd v_t193_0 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t193_1 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t193_0);
+    const derive_vd v_t193_2 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t193_1);
+    const derive_vd v_t193_3 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t193_2);
+    const derive_vd v_t193_4 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t193_3);
+    const derive_vd v_t193 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t193_4);
     #else
-    const double t203 = DERIVE_FMA(t35, P[308], DERIVE_FMA(t43, P[284], DERIVE_FMA(t134, P[260], DERIVE_FMA(t41, P[92], DERIVE_FMA(t34, P[44], DERIVE_FMA(t44, P[20], P[68]))))));
-    const double t204 = DERIVE_FMA(t35, P[309], DERIVE_FMA(t43, P[285], DERIVE_FMA(t134, P[261], DERIVE_FMA(t41, P[93], DERIVE_FMA(t34, P[45], DERIVE_FMA(t44, P[21], P[69]))))));
-    const double t205 = DERIVE_FMA(t35, P[310], DERIVE_FMA(t43, P[286], DERIVE_FMA(t134, P[262], DERIVE_FMA(t41, P[94], DERIVE_FMA(t34, P[46], DERIVE_FMA(t44, P[22], P[70]))))));
-    const double t206 = DERIVE_FMA(t35, P[311], DERIVE_FMA(t43, P[287], DERIVE_FMA(t134, P[263], DERIVE_FMA(t41, P[95], DERIVE_FMA(t34, P[47], DERIVE_FMA(t44, P[23], P[71]))))));
+    const double t193 = DERIVE_FMA(t44, P[308], DERIVE_FMA(t52, P[284], DERIVE_FMA(t124, P[260], DERIVE_FMA(t50, P[92], DERIVE_FMA(t43, P[44], DERIVE_FMA(t53, P[20], P[68]))))));
+    const double t194 = DERIVE_FMA(t44, P[309], DERIVE_FMA(t52, P[285], DERIVE_FMA(t124, P[261], DERIVE_FMA(t50, P[93], DERIVE_FMA(t43, P[45], DERIVE_FMA(t53, P[21], P[69]))))));
+    const double t195 = DERIVE_FMA(t44, P[310], DERIVE_FMA(t52, P[286], DERIVE_FMA(t124, P[262], DERIVE_FMA(t50, P[94], DERIVE_FMA(t43, P[46], DERIVE_FMA(t53, P[22], P[70]))))));
+    const double t196 = DERIVE_FMA(t44, P[311], DERIVE_FMA(t52, P[287], DERIVE_FMA(t124, P[263], DERIVE_FMA(t50, P[95], DERIVE_FMA(t43, P[47], DERIVE_FMA(t53, P[23], P[71]))))));
+    P_new[68] = t193;
+    P_new[482] = t193;
+    P_new[69] = t194;
+    P_new[506] = t194;
+    P_new[70] = t195;
+    P_new[530] = t195;
+    P_new[71] = t196;
+    P_new[554] = t196;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t207_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t207_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t207_0);
-    const derive_vd v_t207_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t207_1);
-    const derive_vd v_t207_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t207_2);
-    const derive_vd v_t207_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t207_3);
-    const derive_vd v_t207 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t207_4);
-    const double t207 = v_t207[0];
-    const double t208 = v_t207[1];
-    const double t209 = v_t207[2];
-    const double t210 = v_t207[3];
+    const derive_vd v_t197_0 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t197_1 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t197_0);
+    const derive_vd v_t197_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t197_1);
+    const derive_vd v_t197_3 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t197_2);
+    const derive_vd v_t197_4 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t197_3);
+    const derive_vd v_t197 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t197_4);
+    const double t197 = v_t197[0];
+    const double t198 = v_t197[1];
+    const double t199 = v_t197[2];
+    const double t200 = v_t197[3];
     #else
-    const double t207 = DERIVE_FMA(t43, P[288], DERIVE_FMA(t135, P[264], DERIVE_FMA(t36, P[240], DERIVE_FMA(t32, P[48], DERIVE_FMA(t44, P[24], DERIVE_FMA(t42, P[0], P[72]))))));
-    const double t208 = DERIVE_FMA(t43, P[289], DERIVE_FMA(t135, P[265], DERIVE_FMA(t36, P[241], DERIVE_FMA(t32, P[49], DERIVE_FMA(t44, P[25], DERIVE_FMA(t42, P[1], P[73]))))));
-    const double t209 = DERIVE_FMA(t43, P[290], DERIVE_FMA(t135, P[266], DERIVE_FMA(t36, P[242], DERIVE_FMA(t32, P[50], DERIVE_FMA(t44, P[26], DERIVE_FMA(t42, P[2], P[74]))))));
-    const double t210 = DERIVE_FMA(t43, P[291], DERIVE_FMA(t135, P[267], DERIVE_FMA(t36, P[243], DERIVE_FMA(t32, P[51], DERIVE_FMA(t44, P[27], DERIVE_FMA(t42, P[3], P[75]))))));
+    const double t197 = DERIVE_FMA(t52, P[288], DERIVE_FMA(t125, P[264], DERIVE_FMA(t45, P[240], DERIVE_FMA(t41, P[48], DERIVE_FMA(t53, P[24], DERIVE_FMA(t51, P[0], P[72]))))));
+    const double t198 = DERIVE_FMA(t52, P[289], DERIVE_FMA(t125, P[265], DERIVE_FMA(t45, P[241], DERIVE_FMA(t41, P[49], DERIVE_FMA(t53, P[25], DERIVE_FMA(t51, P[1], P[73]))))));
+    const double t199 = DERIVE_FMA(t52, P[290], DERIVE_FMA(t125, P[266], DERIVE_FMA(t45, P[242], DERIVE_FMA(t41, P[50], DERIVE_FMA(t53, P[26], DERIVE_FMA(t51, P[2], P[74]))))));
+    const double t200 = DERIVE_FMA(t52, P[291], DERIVE_FMA(t125, P[267], DERIVE_FMA(t45, P[243], DERIVE_FMA(t41, P[51], DERIVE_FMA(t53, P[27], DERIVE_FMA(t51, P[3], P[75]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t211_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd v_t211_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t211_0);
-    const derive_vd v_t211_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t211_1);
-    const derive_vd v_t211_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t211_2);
-    const derive_vd v_t211_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t211_3);
-    const derive_vd v_t211 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t211_4);
-    const double t213 = v_t211[2];
-    const double t214 = v_t211[3];
-    *(derive_vd_unaligned *)&P_new[240] = ((derive_vd){t153, t173, t193, t213});
-    *(derive_vd_unaligned *)&P_new[264] = ((derive_vd){t154, t174, t194, t214});
+    const derive_vd v_t201_0 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd v_t201_1 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t201_0);
+    const derive_vd v_t201_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t201_1);
+    const derive_vd v_t201_3 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t201_2);
+    const derive_vd v_t201_4 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t201_3);
+    const derive_vd v_t201 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t201_4);
+    const double t203 = v_t201[2];
+    const double t204 = v_t201[3];
+    *(derive_vd_unaligned *)&P_new[240] = ((derive_vd){t143, t163, t183, t203});
+    *(derive_vd_unaligned *)&P_new[264] = ((derive_vd){t144, t164, t184, t204});
     #else
-    const double t213 = DERIVE_FMA(t43, P[298], DERIVE_FMA(t135, P[274], DERIVE_FMA(t36, P[250], DERIVE_FMA(t32, P[58], DERIVE_FMA(t44, P[34], DERIVE_FMA(t42, P[10], P[82]))))));
-    const double t214 = DERIVE_FMA(t43, P[299], DERIVE_FMA(t135, P[275], DERIVE_FMA(t36, P[251], DERIVE_FMA(t32, P[59], DERIVE_FMA(t44, P[35], DERIVE_FMA(t42, P[11], P[83]))))));
+    const double t203 = DERIVE_FMA(t52, P[298], DERIVE_FMA(t125, P[274], DERIVE_FMA(t45, P[250], DERIVE_FMA(t41, P[58], DERIVE_FMA(t53, P[34], DERIVE_FMA(t51, P[10], P[82]))))));
+    const double t204 = DERIVE_FMA(t52, P[299], DERIVE_FMA(t125, P[275], DERIVE_FMA(t45, P[251], DERIVE_FMA(t41, P[59], DERIVE_FMA(t53, P[35], DERIVE_FMA(t51, P[11], P[83]))))));
+    P_new[82] = t203;
+    P_new[243] = t203;
+    P_new[83] = t204;
+    P_new[267] = t204;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t215_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t215_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t215_0);
-    const derive_vd v_t215_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t215_1);
-    const derive_vd v_t215_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t215_2);
-    const derive_vd v_t215_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t215_3);
-    const derive_vd v_t215 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t215_4);
-    const double t215 = v_t215[0];
-    const derive_vd tr_v_t155_0 = __builtin_shufflevector(v_t155, v_t175, 0, 4, 2, 6);
-    const derive_vd tr_v_t155_1 = __builtin_shufflevector(v_t155, v_t175, 1, 5, 3, 7);
-    const derive_vd tr_v_t155_2 = __builtin_shufflevector(v_t195, v_t215, 0, 4, 2, 6);
-    const derive_vd tr_v_t155_3 = __builtin_shufflevector(v_t195, v_t215, 1, 5, 3, 7);
-    const derive_vd tr_v_t155_c0 = __builtin_shufflevector(tr_v_t155_0, tr_v_t155_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t155_c1 = __builtin_shufflevector(tr_v_t155_1, tr_v_t155_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t155_c2 = __builtin_shufflevector(tr_v_t155_0, tr_v_t155_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t155_c3 = __builtin_shufflevector(tr_v_t155_1, tr_v_t155_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[12] = v_t155;
-    *(derive_vd_unaligned *)&P_new[36] = v_t175;
-    *(derive_vd_unaligned *)&P_new[60] = v_t195;
-    *(derive_vd_unaligned *)&P_new[84] = v_t215;
-    *(derive_vd_unaligned *)&P_new[288] = tr_v_t155_c0;
-    *(derive_vd_unaligned *)&P_new[312] = tr_v_t155_c1;
-    *(derive_vd_unaligned *)&P_new[336] = tr_v_t155_c2;
-    *(derive_vd_unaligned *)&P_new[360] = tr_v_t155_c3;
+    const derive_vd v_t205_0 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t205_1 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t205_0);
+    const derive_vd v_t205_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t205_1);
+    const derive_vd v_t205_3 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t205_2);
+    const derive_vd v_t205_4 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t205_3);
+    const derive_vd v_t205 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t205_4);
+    const double t205 = v_t205[0];
+    const derive_vd tr_v_t145_0 = __builtin_shufflevector(v_t145, v_t165, 0, 4, 2, 6);
+    const derive_vd tr_v_t145_1 = __builtin_shufflevector(v_t145, v_t165, 1, 5, 3, 7);
+    const derive_vd tr_v_t145_2 = __builtin_shufflevector(v_t185, v_t205, 0, 4, 2, 6);
+    const derive_vd tr_v_t145_3 = __builtin_shufflevector(v_t185, v_t205, 1, 5, 3, 7);
+    const derive_vd tr_v_t145_c0 = __builtin_shufflevector(tr_v_t145_0, tr_v_t145_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t145_c1 = __builtin_shufflevector(tr_v_t145_1, tr_v_t145_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t145_c2 = __builtin_shufflevector(tr_v_t145_0, tr_v_t145_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t145_c3 = __builtin_shufflevector(tr_v_t145_1, tr_v_t145_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t145;
+    *(derive_vd_unaligned *)&P_new[36] = v_t165;
+    *(derive_vd_unaligned *)&P_new[60] = v_t185;
+    *(derive_vd_unaligned *)&P_new[84] = v_t205;
+    *(derive_vd_unaligned *)&P_new[288] = tr_v_t145_c0;
+    *(derive_vd_unaligned *)&P_new[312] = tr_v_t145_c1;
+    *(derive_vd_unaligned *)&P_new[336] = tr_v_t145_c2;
+    *(derive_vd_unaligned *)&P_new[360] = tr_v_t145_c3;
     #else
-    const double t215 = DERIVE_FMA(t43, P[300], DERIVE_FMA(t135, P[276], DERIVE_FMA(t36, P[252], DERIVE_FMA(t32, P[60], DERIVE_FMA(t44, P[36], DERIVE_FMA(t42, P[12], P[84]))))));
-    const double t216 = DERIVE_FMA(t43, P[301], DERIVE_FMA(t135, P[277], DERIVE_FMA(t36, P[253], DERIVE_FMA(t32, P[61], DERIVE_FMA(t44, P[37], DERIVE_FMA(t42, P[13], P[85]))))));
-    const double t217 = DERIVE_FMA(t43, P[302], DERIVE_FMA(t135, P[278], DERIVE_FMA(t36, P[254], DERIVE_FMA(t32, P[62], DERIVE_FMA(t44, P[38], DERIVE_FMA(t42, P[14], P[86]))))));
-    const double t218 = DERIVE_FMA(t43, P[303], DERIVE_FMA(t135, P[279], DERIVE_FMA(t36, P[255], DERIVE_FMA(t32, P[63], DERIVE_FMA(t44, P[39], DERIVE_FMA(t42, P[15], P[87]))))));
+    const double t205 = DERIVE_FMA(t52, P[300], DERIVE_FMA(t125, P[276], DERIVE_FMA(t45, P[252], DERIVE_FMA(t41, P[60], DERIVE_FMA(t53, P[36], DERIVE_FMA(t51, P[12], P[84]))))));
+    const double t206 = DERIVE_FMA(t52, P[301], DERIVE_FMA(t125, P[277], DERIVE_FMA(t45, P[253], DERIVE_FMA(t41, P[61], DERIVE_FMA(t53, P[37], DERIVE_FMA(t51, P[13], P[85]))))));
+    const double t207 = DERIVE_FMA(t52, P[302], DERIVE_FMA(t125, P[278], DERIVE_FMA(t45, P[254], DERIVE_FMA(t41, P[62], DERIVE_FMA(t53, P[38], DERIVE_FMA(t51, P[14], P[86]))))));
+    const double t208 = DERIVE_FMA(t52, P[303], DERIVE_FMA(t125, P[279], DERIVE_FMA(t45, P[255], DERIVE_FMA(t41, P[63], DERIVE_FMA(t53, P[39], DERIVE_FMA(t51, P[15], P[87]))))));
+    P_new[84] = t205;
+    P_new[291] = t205;
+    P_new[85] = t206;
+    P_new[315] = t206;
+    P_new[86] = t207;
+    P_new[339] = t207;
+    P_new[87] = t208;
+    P_new[363] = t208;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t219_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t219_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t219_0);
-    const derive_vd v_t219_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t219_1);
-    const derive_vd v_t219_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t219_2);
-    const derive_vd v_t219_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t219_3);
-    const derive_vd v_t219 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t219_4);
-    const derive_vd tr_v_t159_0 = __builtin_shufflevector(v_t159, v_t179, 0, 4, 2, 6);
-    const derive_vd tr_v_t159_1 = __builtin_shufflevector(v_t159, v_t179, 1, 5, 3, 7);
-    const derive_vd tr_v_t159_2 = __builtin_shufflevector(v_t199, v_t219, 0, 4, 2, 6);
-    const derive_vd tr_v_t159_3 = __builtin_shufflevector(v_t199, v_t219, 1, 5, 3, 7);
-    const derive_vd tr_v_t159_c0 = __builtin_shufflevector(tr_v_t159_0, tr_v_t159_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t159_c1 = __builtin_shufflevector(tr_v_t159_1, tr_v_t159_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t159_c2 = __builtin_shufflevector(tr_v_t159_0, tr_v_t159_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t159_c3 = __builtin_shufflevector(tr_v_t159_1, tr_v_t159_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[16] = v_t159;
-    *(derive_vd_unaligned *)&P_new[40] = v_t179;
-    *(derive_vd_unaligned *)&P_new[64] = v_t199;
-    *(derive_vd_unaligned *)&P_new[88] = v_t219;
-    *(derive_vd_unaligned *)&P_new[384] = tr_v_t159_c0;
-    *(derive_vd_unaligned *)&P_new[408] = tr_v_t159_c1;
-    *(derive_vd_unaligned *)&P_new[432] = tr_v_t159_c2;
-    *(derive_vd_unaligned *)&P_new[456] = tr_v_t159_c3;
+    const derive_vd v_t209_0 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t209_1 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t209_0);
+    const derive_vd v_t209_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t209_1);
+    const derive_vd v_t209_3 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t209_2);
+    const derive_vd v_t209_4 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t209_3);
+    const derive_vd v_t209 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t209_4);
+    const derive_vd tr_v_t149_0 = __builtin_shufflevector(v_t149, v_t169, 0, 4, 2, 6);
+    const derive_vd tr_v_t149_1 = __builtin_shufflevector(v_t149, v_t169, 1, 5, 3, 7);
+    const derive_vd tr_v_t149_2 = __builtin_shufflevector(v_t189, v_t209, 0, 4, 2, 6);
+    const derive_vd tr_v_t149_3 = __builtin_shufflevector(v_t189, v_t209, 1, 5, 3, 7);
+    const derive_vd tr_v_t149_c0 = __builtin_shufflevector(tr_v_t149_0, tr_v_t149_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t149_c1 = __builtin_shufflevector(tr_v_t149_1, tr_v_t149_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t149_c2 = __builtin_shufflevector(tr_v_t149_0, tr_v_t149_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t149_c3 = __builtin_shufflevector(tr_v_t149_1, tr_v_t149_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[16] = v_t149;
+    *(derive_vd_unaligned *)&P_new[40] = v_t169;
+    *(derive_vd_unaligned *)&P_new[64] = v_t189;
+    *(derive_vd_unaligned *)&P_new[88] = v_t209;
+    *(derive_vd_unaligned *)&P_new[384] = tr_v_t149_c0;
+    *(derive_vd_unaligned *)&P_new[408] = tr_v_t149_c1;
+    *(derive_vd_unaligned *)&P_new[432] = tr_v_t149_c2;
+    *(derive_vd_unaligned *)&P_new[456] = tr_v_t149_c3;
     #else
-    const double t219 = DERIVE_FMA(t43, P[304], DERIVE_FMA(t135, P[280], DERIVE_FMA(t36, P[256], DERIVE_FMA(t32, P[64], DERIVE_FMA(t44, P[40], DERIVE_FMA(t42, P[16], P[88]))))));
-    const double t220 = DERIVE_FMA(t43, P[305], DERIVE_FMA(t135, P[281], DERIVE_FMA(t36, P[257], DERIVE_FMA(t32, P[65], DERIVE_FMA(t44, P[41], DERIVE_FMA(t42, P[17], P[89]))))));
-    const double t221 = DERIVE_FMA(t43, P[306], DERIVE_FMA(t135, P[282], DERIVE_FMA(t36, P[258], DERIVE_FMA(t32, P[66], DERIVE_FMA(t44, P[42], DERIVE_FMA(t42, P[18], P[90]))))));
-    const double t222 = DERIVE_FMA(t43, P[307], DERIVE_FMA(t135, P[283], DERIVE_FMA(t36, P[259], DERIVE_FMA(t32, P[67], DERIVE_FMA(t44, P[43], DERIVE_FMA(t42, P[19], P[91]))))));
+    const double t209 = DERIVE_FMA(t52, P[304], DERIVE_FMA(t125, P[280], DERIVE_FMA(t45, P[256], DERIVE_FMA(t41, P[64], DERIVE_FMA(t53, P[40], DERIVE_FMA(t51, P[16], P[88]))))));
+    const double t210 = DERIVE_FMA(t52, P[305], DERIVE_FMA(t125, P[281], DERIVE_FMA(t45, P[257], DERIVE_FMA(t41, P[65], DERIVE_FMA(t53, P[41], DERIVE_FMA(t51, P[17], P[89]))))));
+    const double t211 = DERIVE_FMA(t52, P[306], DERIVE_FMA(t125, P[282], DERIVE_FMA(t45, P[258], DERIVE_FMA(t41, P[66], DERIVE_FMA(t53, P[42], DERIVE_FMA(t51, P[18], P[90]))))));
+    const double t212 = DERIVE_FMA(t52, P[307], DERIVE_FMA(t125, P[283], DERIVE_FMA(t45, P[259], DERIVE_FMA(t41, P[67], DERIVE_FMA(t53, P[43], DERIVE_FMA(t51, P[19], P[91]))))));
+    P_new[88] = t209;
+    P_new[387] = t209;
+    P_new[89] = t210;
+    P_new[411] = t210;
+    P_new[90] = t211;
+    P_new[435] = t211;
+    P_new[91] = t212;
+    P_new[459] = t212;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t223_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t223_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t223_0);
-    const derive_vd v_t223_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t223_1);
-    const derive_vd v_t223_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t223_2);
-    const derive_vd v_t223_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t223_3);
-    const derive_vd v_t223 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t223_4);
-    const derive_vd tr_v_t163_0 = __builtin_shufflevector(v_t163, v_t183, 0, 4, 2, 6);
-    const derive_vd tr_v_t163_1 = __builtin_shufflevector(v_t163, v_t183, 1, 5, 3, 7);
-    const derive_vd tr_v_t163_2 = __builtin_shufflevector(v_t203, v_t223, 0, 4, 2, 6);
-    const derive_vd tr_v_t163_3 = __builtin_shufflevector(v_t203, v_t223, 1, 5, 3, 7);
-    const derive_vd tr_v_t163_c0 = __builtin_shufflevector(tr_v_t163_0, tr_v_t163_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t163_c1 = __builtin_shufflevector(tr_v_t163_1, tr_v_t163_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t163_c2 = __builtin_shufflevector(tr_v_t163_0, tr_v_t163_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t163_c3 = __builtin_shufflevector(tr_v_t163_1, tr_v_t163_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[20] = v_t163;
-    *(derive_vd_unaligned *)&P_new[44] = v_t183;
-    *(derive_vd_unaligned *)&P_new[68] = v_t203;
-    *(derive_vd_unaligned *)&P_new[92] = v_t223;
-    *(derive_vd_unaligned *)&P_new[480] = tr_v_t163_c0;
-    *(derive_vd_unaligned *)&P_new[504] = tr_v_t163_c1;
-    *(derive_vd_unaligned *)&P_new[528] = tr_v_t163_c2;
-    *(derive_vd_unaligned *)&P_new[552] = tr_v_t163_c3;
+    const derive_vd v_t213_0 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t213_1 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t213_0);
+    const derive_vd v_t213_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t213_1);
+    const derive_vd v_t213_3 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t213_2);
+    const derive_vd v_t213_4 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t213_3);
+    const derive_vd v_t213 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t213_4);
+    const derive_vd tr_v_t153_0 = __builtin_shufflevector(v_t153, v_t173, 0, 4, 2, 6);
+    const derive_vd tr_v_t153_1 = __builtin_shufflevector(v_t153, v_t173, 1, 5, 3, 7);
+    const derive_vd tr_v_t153_2 = __builtin_shufflevector(v_t193, v_t213, 0, 4, 2, 6);
+    const derive_vd tr_v_t153_3 = __builtin_shufflevector(v_t193, v_t213, 1, 5, 3, 7);
+    const derive_vd tr_v_t153_c0 = __builtin_shufflevector(tr_v_t153_0, tr_v_t153_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t153_c1 = __builtin_shufflevector(tr_v_t153_1, tr_v_t153_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t153_c2 = __builtin_shufflevector(tr_v_t153_0, tr_v_t153_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t153_c3 = __builtin_shufflevector(tr_v_t153_1, tr_v_t153_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[20] = v_t153;
+    *(derive_vd_unaligned *)&P_new[44] = v_t173;
+    *(derive_vd_unaligned *)&P_new[68] = v_t193;
+    *(derive_vd_unaligned *)&P_new[92] = v_t213;
+    *(derive_vd_unaligned *)&P_new[480] = tr_v_t153_c0;
+    *(derive_vd_unaligned *)&P_new[504] = tr_v_t153_c1;
+    *(derive_vd_unaligned *)&P_new[528] = tr_v_t153_c2;
+    *(derive_vd_unaligned *)&P_new[552] = tr_v_t153_c3;
     #else
-    const double t223 = DERIVE_FMA(t43, P[308], DERIVE_FMA(t135, P[284], DERIVE_FMA(t36, P[260], DERIVE_FMA(t32, P[68], DERIVE_FMA(t44, P[44], DERIVE_FMA(t42, P[20], P[92]))))));
-    const double t224 = DERIVE_FMA(t43, P[309], DERIVE_FMA(t135, P[285], DERIVE_FMA(t36, P[261], DERIVE_FMA(t32, P[69], DERIVE_FMA(t44, P[45], DERIVE_FMA(t42, P[21], P[93]))))));
-    const double t225 = DERIVE_FMA(t43, P[310], DERIVE_FMA(t135, P[286], DERIVE_FMA(t36, P[262], DERIVE_FMA(t32, P[70], DERIVE_FMA(t44, P[46], DERIVE_FMA(t42, P[22], P[94]))))));
-    const double t226 = DERIVE_FMA(t43, P[311], DERIVE_FMA(t135, P[287], DERIVE_FMA(t36, P[263], DERIVE_FMA(t32, P[71], DERIVE_FMA(t44, P[47], DERIVE_FMA(t42, P[23], P[95]))))));
+    const double t213 = DERIVE_FMA(t52, P[308], DERIVE_FMA(t125, P[284], DERIVE_FMA(t45, P[260], DERIVE_FMA(t41, P[68], DERIVE_FMA(t53, P[44], DERIVE_FMA(t51, P[20], P[92]))))));
+    const double t214 = DERIVE_FMA(t52, P[309], DERIVE_FMA(t125, P[285], DERIVE_FMA(t45, P[261], DERIVE_FMA(t41, P[69], DERIVE_FMA(t53, P[45], DERIVE_FMA(t51, P[21], P[93]))))));
+    const double t215 = DERIVE_FMA(t52, P[310], DERIVE_FMA(t125, P[286], DERIVE_FMA(t45, P[262], DERIVE_FMA(t41, P[70], DERIVE_FMA(t53, P[46], DERIVE_FMA(t51, P[22], P[94]))))));
+    const double t216 = DERIVE_FMA(t52, P[311], DERIVE_FMA(t125, P[287], DERIVE_FMA(t45, P[263], DERIVE_FMA(t41, P[71], DERIVE_FMA(t53, P[47], DERIVE_FMA(t51, P[23], P[95]))))));
+    P_new[92] = t213;
+    P_new[483] = t213;
+    P_new[93] = t214;
+    P_new[507] = t214;
+    P_new[94] = t215;
+    P_new[531] = t215;
+    P_new[95] = t216;
+    P_new[555] = t216;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t227_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
-    const derive_vd v_t227_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t227_0);
-    const derive_vd v_t227_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t227_1);
-    const derive_vd v_t227_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t227_2);
-    const derive_vd v_t227_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t227_3);
-    const derive_vd v_t227_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t227_4);
-    const derive_vd v_t227 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t227_5);
-    const double t227 = v_t227[0];
-    const double t228 = v_t227[1];
-    const double t229 = v_t227[2];
-    const double t230 = v_t227[3];
+    const derive_vd v_t217_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
+    const derive_vd v_t217_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t217_0);
+    const derive_vd v_t217_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t217_1);
+    const derive_vd v_t217_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t217_2);
+    const derive_vd v_t217_4 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t217_3);
+    const derive_vd v_t217_5 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t217_4);
+    const derive_vd v_t217 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t217_5);
+    const double t217 = v_t217[0];
+    const double t218 = v_t217[1];
+    const double t219 = v_t217[2];
+    const double t220 = v_t217[3];
     #else
-    const double t227 = DERIVE_FMA(t138, P[360], DERIVE_FMA(t137, P[336], DERIVE_FMA(t136, P[312], DERIVE_FMA(t73, P[72], DERIVE_FMA(t72, P[48], DERIVE_FMA(t71, P[24], DERIVE_FMA(t70, P[0], P[96])))))));
-    const double t228 = DERIVE_FMA(t138, P[361], DERIVE_FMA(t137, P[337], DERIVE_FMA(t136, P[313], DERIVE_FMA(t73, P[73], DERIVE_FMA(t72, P[49], DERIVE_FMA(t71, P[25], DERIVE_FMA(t70, P[1], P[97])))))));
-    const double t229 = DERIVE_FMA(t138, P[362], DERIVE_FMA(t137, P[338], DERIVE_FMA(t136, P[314], DERIVE_FMA(t73, P[74], DERIVE_FMA(t72, P[50], DERIVE_FMA(t71, P[26], DERIVE_FMA(t70, P[2], P[98])))))));
-    const double t230 = DERIVE_FMA(t138, P[363], DERIVE_FMA(t137, P[339], DERIVE_FMA(t136, P[315], DERIVE_FMA(t73, P[75], DERIVE_FMA(t72, P[51], DERIVE_FMA(t71, P[27], DERIVE_FMA(t70, P[3], P[99])))))));
+    const double t217 = DERIVE_FMA(t128, P[360], DERIVE_FMA(t127, P[336], DERIVE_FMA(t126, P[312], DERIVE_FMA(t82, P[72], DERIVE_FMA(t81, P[48], DERIVE_FMA(t80, P[24], DERIVE_FMA(t79, P[0], P[96])))))));
+    const double t218 = DERIVE_FMA(t128, P[361], DERIVE_FMA(t127, P[337], DERIVE_FMA(t126, P[313], DERIVE_FMA(t82, P[73], DERIVE_FMA(t81, P[49], DERIVE_FMA(t80, P[25], DERIVE_FMA(t79, P[1], P[97])))))));
+    const double t219 = DERIVE_FMA(t128, P[362], DERIVE_FMA(t127, P[338], DERIVE_FMA(t126, P[314], DERIVE_FMA(t82, P[74], DERIVE_FMA(t81, P[50], DERIVE_FMA(t80, P[26], DERIVE_FMA(t79, P[2], P[98])))))));
+    const double t220 = DERIVE_FMA(t128, P[363], DERIVE_FMA(t127, P[339], DERIVE_FMA(t126, P[315], DERIVE_FMA(t82, P[75], DERIVE_FMA(t81, P[51], DERIVE_FMA(t80, P[27], DERIVE_FMA(t79, P[3], P[99])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t231_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t231_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t231_0);
-    const derive_vd v_t231_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t231_1);
-    const derive_vd v_t231_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t231_2);
-    const derive_vd v_t231_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t231_3);
-    const derive_vd v_t231_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t231_4);
-    const derive_vd v_t231 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t231_5);
-    const double t231 = v_t231[0];
+    const derive_vd v_t221_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t221_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t221_0);
+    const derive_vd v_t221_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t221_1);
+    const derive_vd v_t221_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t221_2);
+    const derive_vd v_t221_4 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t221_3);
+    const derive_vd v_t221_5 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t221_4);
+    const derive_vd v_t221 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t221_5);
+    const double t221 = v_t221[0];
     #else
-    const double t231 = DERIVE_FMA(t138, P[364], DERIVE_FMA(t137, P[340], DERIVE_FMA(t136, P[316], DERIVE_FMA(t73, P[76], DERIVE_FMA(t72, P[52], DERIVE_FMA(t71, P[28], DERIVE_FMA(t70, P[4], P[100])))))));
+    const double t221 = DERIVE_FMA(t128, P[364], DERIVE_FMA(t127, P[340], DERIVE_FMA(t126, P[316], DERIVE_FMA(t82, P[76], DERIVE_FMA(t81, P[52], DERIVE_FMA(t80, P[28], DERIVE_FMA(t79, P[4], P[100])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t235_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t235_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t235_0);
-    const derive_vd v_t235_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t235_1);
-    const derive_vd v_t235_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t235_2);
-    const derive_vd v_t235_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t235_3);
-    const derive_vd v_t235_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t235_4);
-    const derive_vd v_t235 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t235_5);
-    const double t237 = v_t235[2];
-    const double t238 = v_t235[3];
+    const derive_vd v_t225_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t225_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t225_0);
+    const derive_vd v_t225_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t225_1);
+    const derive_vd v_t225_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t225_2);
+    const derive_vd v_t225_4 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t225_3);
+    const derive_vd v_t225_5 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t225_4);
+    const derive_vd v_t225 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t225_5);
+    const double t227 = v_t225[2];
+    const double t228 = v_t225[3];
     #else
-    const double t237 = DERIVE_FMA(t138, P[370], DERIVE_FMA(t137, P[346], DERIVE_FMA(t136, P[322], DERIVE_FMA(t73, P[82], DERIVE_FMA(t72, P[58], DERIVE_FMA(t71, P[34], DERIVE_FMA(t70, P[10], P[106])))))));
-    const double t238 = DERIVE_FMA(t138, P[371], DERIVE_FMA(t137, P[347], DERIVE_FMA(t136, P[323], DERIVE_FMA(t73, P[83], DERIVE_FMA(t72, P[59], DERIVE_FMA(t71, P[35], DERIVE_FMA(t70, P[11], P[107])))))));
+    const double t227 = DERIVE_FMA(t128, P[370], DERIVE_FMA(t127, P[346], DERIVE_FMA(t126, P[322], DERIVE_FMA(t82, P[82], DERIVE_FMA(t81, P[58], DERIVE_FMA(t80, P[34], DERIVE_FMA(t79, P[10], P[106])))))));
+    const double t228 = DERIVE_FMA(t128, P[371], DERIVE_FMA(t127, P[347], DERIVE_FMA(t126, P[323], DERIVE_FMA(t82, P[83], DERIVE_FMA(t81, P[59], DERIVE_FMA(t80, P[35], DERIVE_FMA(t79, P[11], P[107])))))));
+    P_new[106] = t227;
+    P_new[244] = t227;
+    P_new[107] = t228;
+    P_new[268] = t228;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t239_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t239_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t239_0);
-    const derive_vd v_t239_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t239_1);
-    const derive_vd v_t239_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t239_2);
-    const derive_vd v_t239_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t239_3);
-    const derive_vd v_t239_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t239_4);
-    const derive_vd v_t239 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t239_5);
-    const double t239 = v_t239[0];
-    const double t240 = v_t239[1];
-    const double t241 = v_t239[2];
-    const double t242 = v_t239[3];
+    const derive_vd v_t229_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t229_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t229_0);
+    const derive_vd v_t229_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t229_1);
+    const derive_vd v_t229_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t229_2);
+    const derive_vd v_t229_4 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t229_3);
+    const derive_vd v_t229_5 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t229_4);
+    const derive_vd v_t229 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t229_5);
+    const double t229 = v_t229[0];
+    const double t230 = v_t229[1];
+    const double t231 = v_t229[2];
+    const double t232 = v_t229[3];
     #else
-    const double t239 = DERIVE_FMA(t138, P[372], DERIVE_FMA(t137, P[348], DERIVE_FMA(t136, P[324], DERIVE_FMA(t73, P[84], DERIVE_FMA(t72, P[60], DERIVE_FMA(t71, P[36], DERIVE_FMA(t70, P[12], P[108])))))));
-    const double t240 = DERIVE_FMA(t138, P[373], DERIVE_FMA(t137, P[349], DERIVE_FMA(t136, P[325], DERIVE_FMA(t73, P[85], DERIVE_FMA(t72, P[61], DERIVE_FMA(t71, P[37], DERIVE_FMA(t70, P[13], P[109])))))));
-    const double t241 = DERIVE_FMA(t138, P[374], DERIVE_FMA(t137, P[350], DERIVE_FMA(t136, P[326], DERIVE_FMA(t73, P[86], DERIVE_FMA(t72, P[62], DERIVE_FMA(t71, P[38], DERIVE_FMA(t70, P[14], P[110])))))));
-    const double t242 = DERIVE_FMA(t138, P[375], DERIVE_FMA(t137, P[351], DERIVE_FMA(t136, P[327], DERIVE_FMA(t73, P[87], DERIVE_FMA(t72, P[63], DERIVE_FMA(t71, P[39], DERIVE_FMA(t70, P[15], P[111])))))));
+    const double t229 = DERIVE_FMA(t128, P[372], DERIVE_FMA(t127, P[348], DERIVE_FMA(t126, P[324], DERIVE_FMA(t82, P[84], DERIVE_FMA(t81, P[60], DERIVE_FMA(t80, P[36], DERIVE_FMA(t79, P[12], P[108])))))));
+    const double t230 = DERIVE_FMA(t128, P[373], DERIVE_FMA(t127, P[349], DERIVE_FMA(t126, P[325], DERIVE_FMA(t82, P[85], DERIVE_FMA(t81, P[61], DERIVE_FMA(t80, P[37], DERIVE_FMA(t79, P[13], P[109])))))));
+    const double t231 = DERIVE_FMA(t128, P[374], DERIVE_FMA(t127, P[350], DERIVE_FMA(t126, P[326], DERIVE_FMA(t82, P[86], DERIVE_FMA(t81, P[62], DERIVE_FMA(t80, P[38], DERIVE_FMA(t79, P[14], P[110])))))));
+    const double t232 = DERIVE_FMA(t128, P[375], DERIVE_FMA(t127, P[351], DERIVE_FMA(t126, P[327], DERIVE_FMA(t82, P[87], DERIVE_FMA(t81, P[63], DERIVE_FMA(t80, P[39], DERIVE_FMA(t79, P[15], P[111])))))));
+    P_new[108] = t229;
+    P_new[292] = t229;
+    P_new[109] = t230;
+    P_new[316] = t230;
+    P_new[110] = t231;
+    P_new[340] = t231;
+    P_new[111] = t232;
+    P_new[364] = t232;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t243_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t243_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t243_0);
-    const derive_vd v_t243_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t243_1);
-    const derive_vd v_t243_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t243_2);
-    const derive_vd v_t243_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t243_3);
-    const derive_vd v_t243_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t243_4);
-    const derive_vd v_t243 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t243_5);
+    const derive_vd v_t233_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t233_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t233_0);
+    const derive_vd v_t233_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t233_1);
+    const derive_vd v_t233_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t233_2);
+    const derive_vd v_t233_4 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t233_3);
+    const derive_vd v_t233_5 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t233_4);
+    const derive_vd v_t233 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t233_5);
     #else
-    const double t243 = DERIVE_FMA(t138, P[376], DERIVE_FMA(t137, P[352], DERIVE_FMA(t136, P[328], DERIVE_FMA(t73, P[88], DERIVE_FMA(t72, P[64], DERIVE_FMA(t71, P[40], DERIVE_FMA(t70, P[16], P[112])))))));
-    const double t244 = DERIVE_FMA(t138, P[377], DERIVE_FMA(t137, P[353], DERIVE_FMA(t136, P[329], DERIVE_FMA(t73, P[89], DERIVE_FMA(t72, P[65], DERIVE_FMA(t71, P[41], DERIVE_FMA(t70, P[17], P[113])))))));
-    const double t245 = DERIVE_FMA(t138, P[378], DERIVE_FMA(t137, P[354], DERIVE_FMA(t136, P[330], DERIVE_FMA(t73, P[90], DERIVE_FMA(t72, P[66], DERIVE_FMA(t71, P[42], DERIVE_FMA(t70, P[18], P[114])))))));
-    const double t246 = DERIVE_FMA(t138, P[379], DERIVE_FMA(t137, P[355], DERIVE_FMA(t136, P[331], DERIVE_FMA(t73, P[91], DERIVE_FMA(t72, P[67], DERIVE_FMA(t71, P[43], DERIVE_FMA(t70, P[19], P[115])))))));
+    const double t233 = DERIVE_FMA(t128, P[376], DERIVE_FMA(t127, P[352], DERIVE_FMA(t126, P[328], DERIVE_FMA(t82, P[88], DERIVE_FMA(t81, P[64], DERIVE_FMA(t80, P[40], DERIVE_FMA(t79, P[16], P[112])))))));
+    const double t234 = DERIVE_FMA(t128, P[377], DERIVE_FMA(t127, P[353], DERIVE_FMA(t126, P[329], DERIVE_FMA(t82, P[89], DERIVE_FMA(t81, P[65], DERIVE_FMA(t80, P[41], DERIVE_FMA(t79, P[17], P[113])))))));
+    const double t235 = DERIVE_FMA(t128, P[378], DERIVE_FMA(t127, P[354], DERIVE_FMA(t126, P[330], DERIVE_FMA(t82, P[90], DERIVE_FMA(t81, P[66], DERIVE_FMA(t80, P[42], DERIVE_FMA(t79, P[18], P[114])))))));
+    const double t236 = DERIVE_FMA(t128, P[379], DERIVE_FMA(t127, P[355], DERIVE_FMA(t126, P[331], DERIVE_FMA(t82, P[91], DERIVE_FMA(t81, P[67], DERIVE_FMA(t80, P[43], DERIVE_FMA(t79, P[19], P[115])))))));
+    P_new[112] = t233;
+    P_new[388] = t233;
+    P_new[113] = t234;
+    P_new[412] = t234;
+    P_new[114] = t235;
+    P_new[436] = t235;
+    P_new[115] = t236;
+    P_new[460] = t236;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t247_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t247_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t247_0);
-    const derive_vd v_t247_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t247_1);
-    const derive_vd v_t247_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t247_2);
-    const derive_vd v_t247_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t247_3);
-    const derive_vd v_t247_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t247_4);
-    const derive_vd v_t247 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t247_5);
+    const derive_vd v_t237_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t237_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t237_0);
+    const derive_vd v_t237_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t237_1);
+    const derive_vd v_t237_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t237_2);
+    const derive_vd v_t237_4 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t237_3);
+    const derive_vd v_t237_5 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t237_4);
+    const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t237_5);
     #else
-    const double t247 = DERIVE_FMA(t138, P[380], DERIVE_FMA(t137, P[356], DERIVE_FMA(t136, P[332], DERIVE_FMA(t73, P[92], DERIVE_FMA(t72, P[68], DERIVE_FMA(t71, P[44], DERIVE_FMA(t70, P[20], P[116])))))));
-    const double t248 = DERIVE_FMA(t138, P[381], DERIVE_FMA(t137, P[357], DERIVE_FMA(t136, P[333], DERIVE_FMA(t73, P[93], DERIVE_FMA(t72, P[69], DERIVE_FMA(t71, P[45], DERIVE_FMA(t70, P[21], P[117])))))));
-    const double t249 = DERIVE_FMA(t138, P[382], DERIVE_FMA(t137, P[358], DERIVE_FMA(t136, P[334], DERIVE_FMA(t73, P[94], DERIVE_FMA(t72, P[70], DERIVE_FMA(t71, P[46], DERIVE_FMA(t70, P[22], P[118])))))));
-    const double t250 = DERIVE_FMA(t138, P[383], DERIVE_FMA(t137, P[359], DERIVE_FMA(t136, P[335], DERIVE_FMA(t73, P[95], DERIVE_FMA(t72, P[71], DERIVE_FMA(t71, P[47], DERIVE_FMA(t70, P[23], P[119])))))));
+    const double t237 = DERIVE_FMA(t128, P[380], DERIVE_FMA(t127, P[356], DERIVE_FMA(t126, P[332], DERIVE_FMA(t82, P[92], DERIVE_FMA(t81, P[68], DERIVE_FMA(t80, P[44], DERIVE_FMA(t79, P[20], P[116])))))));
+    const double t238 = DERIVE_FMA(t128, P[381], DERIVE_FMA(t127, P[357], DERIVE_FMA(t126, P[333], DERIVE_FMA(t82, P[93], DERIVE_FMA(t81, P[69], DERIVE_FMA(t80, P[45], DERIVE_FMA(t79, P[21], P[117])))))));
+    const double t239 = DERIVE_FMA(t128, P[382], DERIVE_FMA(t127, P[358], DERIVE_FMA(t126, P[334], DERIVE_FMA(t82, P[94], DERIVE_FMA(t81, P[70], DERIVE_FMA(t80, P[46], DERIVE_FMA(t79, P[22], P[118])))))));
+    const double t240 = DERIVE_FMA(t128, P[383], DERIVE_FMA(t127, P[359], DERIVE_FMA(t126, P[335], DERIVE_FMA(t82, P[95], DERIVE_FMA(t81, P[71], DERIVE_FMA(t80, P[47], DERIVE_FMA(t79, P[23], P[119])))))));
+    P_new[116] = t237;
+    P_new[484] = t237;
+    P_new[117] = t238;
+    P_new[508] = t238;
+    P_new[118] = t239;
+    P_new[532] = t239;
+    P_new[119] = t240;
+    P_new[556] = t240;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t251_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
-    const derive_vd v_t251_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t251_0);
-    const derive_vd v_t251_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t251_1);
-    const derive_vd v_t251_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t251_2);
-    const derive_vd v_t251_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t251_3);
-    const derive_vd v_t251_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t251_4);
-    const derive_vd v_t251 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t251_5);
-    const double t251 = v_t251[0];
-    const double t252 = v_t251[1];
-    const double t253 = v_t251[2];
-    const double t254 = v_t251[3];
+    const derive_vd v_t241_0 = DERIVE_VFMA(((derive_vd){t86, t86, t86, t86}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd v_t241_1 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t241_0);
+    const derive_vd v_t241_2 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t241_1);
+    const derive_vd v_t241_3 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t241_2);
+    const derive_vd v_t241_4 = DERIVE_VFMA(((derive_vd){t130, t130, t130, t130}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t241_3);
+    const derive_vd v_t241_5 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t241_4);
+    const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t241_5);
+    const double t241 = v_t241[0];
+    const double t242 = v_t241[1];
+    const double t243 = v_t241[2];
+    const double t244 = v_t241[3];
     #else
-    const double t251 = DERIVE_FMA(t142, P[360], DERIVE_FMA(t141, P[336], DERIVE_FMA(t140, P[312], DERIVE_FMA(t80, P[72], DERIVE_FMA(t79, P[48], DERIVE_FMA(t139, P[24], DERIVE_FMA(t77, P[0], P[120])))))));
-    const double t252 = DERIVE_FMA(t142, P[361], DERIVE_FMA(t141, P[337], DERIVE_FMA(t140, P[313], DERIVE_FMA(t80, P[73], DERIVE_FMA(t79, P[49], DERIVE_FMA(t139, P[25], DERIVE_FMA(t77, P[1], P[121])))))));
-    const double t253 = DERIVE_FMA(t142, P[362], DERIVE_FMA(t141, P[338], DERIVE_FMA(t140, P[314], DERIVE_FMA(t80, P[74], DERIVE_FMA(t79, P[50], DERIVE_FMA(t139, P[26], DERIVE_FMA(t77, P[2], P[122])))))));
-    const double t254 = DERIVE_FMA(t142, P[363], DERIVE_FMA(t141, P[339], DERIVE_FMA(t140, P[315], DERIVE_FMA(t80, P[75], DERIVE_FMA(t79, P[51], DERIVE_FMA(t139, P[27], DERIVE_FMA(t77, P[3], P[123])))))));
+    const double t241 = DERIVE_FMA(t132, P[360], DERIVE_FMA(t131, P[336], DERIVE_FMA(t130, P[312], DERIVE_FMA(t89, P[72], DERIVE_FMA(t88, P[48], DERIVE_FMA(t129, P[24], DERIVE_FMA(t86, P[0], P[120])))))));
+    const double t242 = DERIVE_FMA(t132, P[361], DERIVE_FMA(t131, P[337], DERIVE_FMA(t130, P[313], DERIVE_FMA(t89, P[73], DERIVE_FMA(t88, P[49], DERIVE_FMA(t129, P[25], DERIVE_FMA(t86, P[1], P[121])))))));
+    const double t243 = DERIVE_FMA(t132, P[362], DERIVE_FMA(t131, P[338], DERIVE_FMA(t130, P[314], DERIVE_FMA(t89, P[74], DERIVE_FMA(t88, P[50], DERIVE_FMA(t129, P[26], DERIVE_FMA(t86, P[2], P[122])))))));
+    const double t244 = DERIVE_FMA(t132, P[363], DERIVE_FMA(t131, P[339], DERIVE_FMA(t130, P[315], DERIVE_FMA(t89, P[75], DERIVE_FMA(t88, P[51], DERIVE_FMA(t129, P[27], DERIVE_FMA(t86, P[3], P[123])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t255_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t255_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t255_0);
-    const derive_vd v_t255_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t255_1);
-    const derive_vd v_t255_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t255_2);
-    const derive_vd v_t255_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t255_3);
-    const derive_vd v_t255_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t255_4);
-    const derive_vd v_t255 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t255_5);
-    const double t255 = v_t255[0];
-    const double t256 = v_t255[1];
+    const derive_vd v_t245_0 = DERIVE_VFMA(((derive_vd){t86, t86, t86, t86}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t245_1 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t245_0);
+    const derive_vd v_t245_2 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t245_1);
+    const derive_vd v_t245_3 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t245_2);
+    const derive_vd v_t245_4 = DERIVE_VFMA(((derive_vd){t130, t130, t130, t130}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t245_3);
+    const derive_vd v_t245_5 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t245_4);
+    const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t245_5);
+    const double t245 = v_t245[0];
+    const double t246 = v_t245[1];
     #else
-    const double t255 = DERIVE_FMA(t142, P[364], DERIVE_FMA(t141, P[340], DERIVE_FMA(t140, P[316], DERIVE_FMA(t80, P[76], DERIVE_FMA(t79, P[52], DERIVE_FMA(t139, P[28], DERIVE_FMA(t77, P[4], P[124])))))));
-    const double t256 = DERIVE_FMA(t142, P[365], DERIVE_FMA(t141, P[341], DERIVE_FMA(t140, P[317], DERIVE_FMA(t80, P[77], DERIVE_FMA(t79, P[53], DERIVE_FMA(t139, P[29], DERIVE_FMA(t77, P[5], P[125])))))));
+    const double t245 = DERIVE_FMA(t132, P[364], DERIVE_FMA(t131, P[340], DERIVE_FMA(t130, P[316], DERIVE_FMA(t89, P[76], DERIVE_FMA(t88, P[52], DERIVE_FMA(t129, P[28], DERIVE_FMA(t86, P[4], P[124])))))));
+    const double t246 = DERIVE_FMA(t132, P[365], DERIVE_FMA(t131, P[341], DERIVE_FMA(t130, P[317], DERIVE_FMA(t89, P[77], DERIVE_FMA(t88, P[53], DERIVE_FMA(t129, P[29], DERIVE_FMA(t86, P[5], P[125])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t259_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t259_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t259_0);
-    const derive_vd v_t259_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t259_1);
-    const derive_vd v_t259_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t259_2);
-    const derive_vd v_t259_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t259_3);
-    const derive_vd v_t259_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t259_4);
-    const derive_vd v_t259 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t259_5);
-    const double t261 = v_t259[2];
-    const double t262 = v_t259[3];
+    const derive_vd v_t249_0 = DERIVE_VFMA(((derive_vd){t86, t86, t86, t86}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t249_1 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t249_0);
+    const derive_vd v_t249_2 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t249_1);
+    const derive_vd v_t249_3 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t249_2);
+    const derive_vd v_t249_4 = DERIVE_VFMA(((derive_vd){t130, t130, t130, t130}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t249_3);
+    const derive_vd v_t249_5 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t249_4);
+    const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t249_5);
+    const double t251 = v_t249[2];
+    const double t252 = v_t249[3];
     #else
-    const double t261 = DERIVE_FMA(t142, P[370], DERIVE_FMA(t141, P[346], DERIVE_FMA(t140, P[322], DERIVE_FMA(t80, P[82], DERIVE_FMA(t79, P[58], DERIVE_FMA(t139, P[34], DERIVE_FMA(t77, P[10], P[130])))))));
-    const double t262 = DERIVE_FMA(t142, P[371], DERIVE_FMA(t141, P[347], DERIVE_FMA(t140, P[323], DERIVE_FMA(t80, P[83], DERIVE_FMA(t79, P[59], DERIVE_FMA(t139, P[35], DERIVE_FMA(t77, P[11], P[131])))))));
+    const double t251 = DERIVE_FMA(t132, P[370], DERIVE_FMA(t131, P[346], DERIVE_FMA(t130, P[322], DERIVE_FMA(t89, P[82], DERIVE_FMA(t88, P[58], DERIVE_FMA(t129, P[34], DERIVE_FMA(t86, P[10], P[130])))))));
+    const double t252 = DERIVE_FMA(t132, P[371], DERIVE_FMA(t131, P[347], DERIVE_FMA(t130, P[323], DERIVE_FMA(t89, P[83], DERIVE_FMA(t88, P[59], DERIVE_FMA(t129, P[35], DERIVE_FMA(t86, P[11], P[131])))))));
+    P_new[130] = t251;
+    P_new[245] = t251;
+    P_new[131] = t252;
+    P_new[269] = t252;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t263_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t263_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t263_0);
-    const derive_vd v_t263_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t263_1);
-    const derive_vd v_t263_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t263_2);
-    const derive_vd v_t263_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t263_3);
-    const derive_vd v_t263_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t263_4);
-    const derive_vd v_t263 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t263_5);
-    const double t263 = v_t263[0];
-    const double t264 = v_t263[1];
-    const double t265 = v_t263[2];
-    const double t266 = v_t263[3];
+    const derive_vd v_t253_0 = DERIVE_VFMA(((derive_vd){t86, t86, t86, t86}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t253_1 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t253_0);
+    const derive_vd v_t253_2 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t253_1);
+    const derive_vd v_t253_3 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t253_2);
+    const derive_vd v_t253_4 = DERIVE_VFMA(((derive_vd){t130, t130, t130, t130}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t253_3);
+    const derive_vd v_t253_5 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t253_4);
+    const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t253_5);
+    const double t253 = v_t253[0];
+    const double t254 = v_t253[1];
+    const double t255 = v_t253[2];
+    const double t256 = v_t253[3];
     #else
-    const double t263 = DERIVE_FMA(t142, P[372], DERIVE_FMA(t141, P[348], DERIVE_FMA(t140, P[324], DERIVE_FMA(t80, P[84], DERIVE_FMA(t79, P[60], DERIVE_FMA(t139, P[36], DERIVE_FMA(t77, P[12], P[132])))))));
-    const double t264 = DERIVE_FMA(t142, P[373], DERIVE_FMA(t141, P[349], DERIVE_FMA(t140, P[325], DERIVE_FMA(t80, P[85], DERIVE_FMA(t79, P[61], DERIVE_FMA(t139, P[37], DERIVE_FMA(t77, P[13], P[133])))))));
-    const double t265 = DERIVE_FMA(t142, P[374], DERIVE_FMA(t141, P[350], DERIVE_FMA(t140, P[326], DERIVE_FMA(t80, P[86], DERIVE_FMA(t79, P[62], DERIVE_FMA(t139, P[38], DERIVE_FMA(t77, P[14], P[134])))))));
-    const double t266 = DERIVE_FMA(t142, P[375], DERIVE_FMA(t141, P[351], DERIVE_FMA(t140, P[327], DERIVE_FMA(t80, P[87], DERIVE_FMA(t79, P[63], DERIVE_FMA(t139, P[39], DERIVE_FMA(t77, P[15], P[135])))))));
+    const double t253 = DERIVE_FMA(t132, P[372], DERIVE_FMA(t131, P[348], DERIVE_FMA(t130, P[324], DERIVE_FMA(t89, P[84], DERIVE_FMA(t88, P[60], DERIVE_FMA(t129, P[36], DERIVE_FMA(t86, P[12], P[132])))))));
+    const double t254 = DERIVE_FMA(t132, P[373], DERIVE_FMA(t131, P[349], DERIVE_FMA(t130, P[325], DERIVE_FMA(t89, P[85], DERIVE_FMA(t88, P[61], DERIVE_FMA(t129, P[37], DERIVE_FMA(t86, P[13], P[133])))))));
+    const double t255 = DERIVE_FMA(t132, P[374], DERIVE_FMA(t131, P[350], DERIVE_FMA(t130, P[326], DERIVE_FMA(t89, P[86], DERIVE_FMA(t88, P[62], DERIVE_FMA(t129, P[38], DERIVE_FMA(t86, P[14], P[134])))))));
+    const double t256 = DERIVE_FMA(t132, P[375], DERIVE_FMA(t131, P[351], DERIVE_FMA(t130, P[327], DERIVE_FMA(t89, P[87], DERIVE_FMA(t88, P[63], DERIVE_FMA(t129, P[39], DERIVE_FMA(t86, P[15], P[135])))))));
+    P_new[132] = t253;
+    P_new[293] = t253;
+    P_new[133] = t254;
+    P_new[317] = t254;
+    P_new[134] = t255;
+    P_new[341] = t255;
+    P_new[135] = t256;
+    P_new[365] = t256;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t267_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t267_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t267_0);
-    const derive_vd v_t267_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t267_1);
-    const derive_vd v_t267_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t267_2);
-    const derive_vd v_t267_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t267_3);
-    const derive_vd v_t267_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t267_4);
-    const derive_vd v_t267 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t267_5);
+    const derive_vd v_t257_0 = DERIVE_VFMA(((derive_vd){t86, t86, t86, t86}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t257_1 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t257_0);
+    const derive_vd v_t257_2 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t257_1);
+    const derive_vd v_t257_3 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t257_2);
+    const derive_vd v_t257_4 = DERIVE_VFMA(((derive_vd){t130, t130, t130, t130}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t257_3);
+    const derive_vd v_t257_5 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t257_4);
+    const derive_vd v_t257 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t257_5);
     #else
-    const double t267 = DERIVE_FMA(t142, P[376], DERIVE_FMA(t141, P[352], DERIVE_FMA(t140, P[328], DERIVE_FMA(t80, P[88], DERIVE_FMA(t79, P[64], DERIVE_FMA(t139, P[40], DERIVE_FMA(t77, P[16], P[136])))))));
-    const double t268 = DERIVE_FMA(t142, P[377], DERIVE_FMA(t141, P[353], DERIVE_FMA(t140, P[329], DERIVE_FMA(t80, P[89], DERIVE_FMA(t79, P[65], DERIVE_FMA(t139, P[41], DERIVE_FMA(t77, P[17], P[137])))))));
-    const double t269 = DERIVE_FMA(t142, P[378], DERIVE_FMA(t141, P[354], DERIVE_FMA(t140, P[330], DERIVE_FMA(t80, P[90], DERIVE_FMA(t79, P[66], DERIVE_FMA(t139, P[42], DERIVE_FMA(t77, P[18], P[138])))))));
-    const double t270 = DERIVE_FMA(t142, P[379], DERIVE_FMA(t141, P[355], DERIVE_FMA(t140, P[331], DERIVE_FMA(t80, P[91], DERIVE_FMA(t79, P[67], DERIVE_FMA(t139, P[43], DERIVE_FMA(t77, P[19], P[139])))))));
+    const double t257 = DERIVE_FMA(t132, P[376], DERIVE_FMA(t131, P[352], DERIVE_FMA(t130, P[328], DERIVE_FMA(t89, P[88], DERIVE_FMA(t88, P[64], DERIVE_FMA(t129, P[40], DERIVE_FMA(t86, P[16], P[136])))))));
+    const double t258 = DERIVE_FMA(t132, P[377], DERIVE_FMA(t131, P[353], DERIVE_FMA(t130, P[329], DERIVE_FMA(t89, P[89], DERIVE_FMA(t88, P[65], DERIVE_FMA(t129, P[41], DERIVE_FMA(t86, P[17], P[137])))))));
+    const double t259 = DERIVE_FMA(t132, P[378], DERIVE_FMA(t131, P[354], DERIVE_FMA(t130, P[330], DERIVE_FMA(t89, P[90], DERIVE_FMA(t88, P[66], DERIVE_FMA(t129, P[42], DERIVE_FMA(t86, P[18], P[138])))))));
+    const double t260 = DERIVE_FMA(t132, P[379], DERIVE_FMA(t131, P[355], DERIVE_FMA(t130, P[331], DERIVE_FMA(t89, P[91], DERIVE_FMA(t88, P[67], DERIVE_FMA(t129, P[43], DERIVE_FMA(t86, P[19], P[139])))))));
+    P_new[136] = t257;
+    P_new[389] = t257;
+    P_new[137] = t258;
+    P_new[413] = t258;
+    P_new[138] = t259;
+    P_new[437] = t259;
+    P_new[139] = t260;
+    P_new[461] = t260;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t271_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t271_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t271_0);
-    const derive_vd v_t271_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t271_1);
-    const derive_vd v_t271_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t271_2);
-    const derive_vd v_t271_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t271_3);
-    const derive_vd v_t271_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t271_4);
-    const derive_vd v_t271 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t271_5);
+    const derive_vd v_t261_0 = DERIVE_VFMA(((derive_vd){t86, t86, t86, t86}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t261_1 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t261_0);
+    const derive_vd v_t261_2 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t261_1);
+    const derive_vd v_t261_3 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t261_2);
+    const derive_vd v_t261_4 = DERIVE_VFMA(((derive_vd){t130, t130, t130, t130}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t261_3);
+    const derive_vd v_t261_5 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t261_4);
+    const derive_vd v_t261 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t261_5);
     #else
-    const double t271 = DERIVE_FMA(t142, P[380], DERIVE_FMA(t141, P[356], DERIVE_FMA(t140, P[332], DERIVE_FMA(t80, P[92], DERIVE_FMA(t79, P[68], DERIVE_FMA(t139, P[44], DERIVE_FMA(t77, P[20], P[140])))))));
-    const double t272 = DERIVE_FMA(t142, P[381], DERIVE_FMA(t141, P[357], DERIVE_FMA(t140, P[333], DERIVE_FMA(t80, P[93], DERIVE_FMA(t79, P[69], DERIVE_FMA(t139, P[45], DERIVE_FMA(t77, P[21], P[141])))))));
-    const double t273 = DERIVE_FMA(t142, P[382], DERIVE_FMA(t141, P[358], DERIVE_FMA(t140, P[334], DERIVE_FMA(t80, P[94], DERIVE_FMA(t79, P[70], DERIVE_FMA(t139, P[46], DERIVE_FMA(t77, P[22], P[142])))))));
-    const double t274 = DERIVE_FMA(t142, P[383], DERIVE_FMA(t141, P[359], DERIVE_FMA(t140, P[335], DERIVE_FMA(t80, P[95], DERIVE_FMA(t79, P[71], DERIVE_FMA(t139, P[47], DERIVE_FMA(t77, P[23], P[143])))))));
+    const double t261 = DERIVE_FMA(t132, P[380], DERIVE_FMA(t131, P[356], DERIVE_FMA(t130, P[332], DERIVE_FMA(t89, P[92], DERIVE_FMA(t88, P[68], DERIVE_FMA(t129, P[44], DERIVE_FMA(t86, P[20], P[140])))))));
+    const double t262 = DERIVE_FMA(t132, P[381], DERIVE_FMA(t131, P[357], DERIVE_FMA(t130, P[333], DERIVE_FMA(t89, P[93], DERIVE_FMA(t88, P[69], DERIVE_FMA(t129, P[45], DERIVE_FMA(t86, P[21], P[141])))))));
+    const double t263 = DERIVE_FMA(t132, P[382], DERIVE_FMA(t131, P[358], DERIVE_FMA(t130, P[334], DERIVE_FMA(t89, P[94], DERIVE_FMA(t88, P[70], DERIVE_FMA(t129, P[46], DERIVE_FMA(t86, P[22], P[142])))))));
+    const double t264 = DERIVE_FMA(t132, P[383], DERIVE_FMA(t131, P[359], DERIVE_FMA(t130, P[335], DERIVE_FMA(t89, P[95], DERIVE_FMA(t88, P[71], DERIVE_FMA(t129, P[47], DERIVE_FMA(t86, P[23], P[143])))))));
+    P_new[140] = t261;
+    P_new[485] = t261;
+    P_new[141] = t262;
+    P_new[509] = t262;
+    P_new[142] = t263;
+    P_new[533] = t263;
+    P_new[143] = t264;
+    P_new[557] = t264;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t275_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
-    const derive_vd v_t275_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t275_0);
-    const derive_vd v_t275_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t275_1);
-    const derive_vd v_t275_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t275_2);
-    const derive_vd v_t275_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t275_3);
-    const derive_vd v_t275_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t275_4);
-    const derive_vd v_t275 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t275_5);
-    const double t275 = v_t275[0];
-    const double t276 = v_t275[1];
-    const double t277 = v_t275[2];
-    const double t278 = v_t275[3];
+    const derive_vd v_t265_0 = DERIVE_VFMA(((derive_vd){t93, t93, t93, t93}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
+    const derive_vd v_t265_1 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t265_0);
+    const derive_vd v_t265_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t265_1);
+    const derive_vd v_t265_3 = DERIVE_VFMA(((derive_vd){t96, t96, t96, t96}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t265_2);
+    const derive_vd v_t265_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t265_3);
+    const derive_vd v_t265_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t265_4);
+    const derive_vd v_t265 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t265_5);
+    const double t265 = v_t265[0];
+    const double t266 = v_t265[1];
+    const double t267 = v_t265[2];
+    const double t268 = v_t265[3];
     #else
-    const double t275 = DERIVE_FMA(t146, P[360], DERIVE_FMA(t145, P[336], DERIVE_FMA(t144, P[312], DERIVE_FMA(t87, P[72], DERIVE_FMA(t143, P[48], DERIVE_FMA(t85, P[24], DERIVE_FMA(t84, P[0], P[144])))))));
-    const double t276 = DERIVE_FMA(t146, P[361], DERIVE_FMA(t145, P[337], DERIVE_FMA(t144, P[313], DERIVE_FMA(t87, P[73], DERIVE_FMA(t143, P[49], DERIVE_FMA(t85, P[25], DERIVE_FMA(t84, P[1], P[145])))))));
-    const double t277 = DERIVE_FMA(t146, P[362], DERIVE_FMA(t145, P[338], DERIVE_FMA(t144, P[314], DERIVE_FMA(t87, P[74], DERIVE_FMA(t143, P[50], DERIVE_FMA(t85, P[26], DERIVE_FMA(t84, P[2], P[146])))))));
-    const double t278 = DERIVE_FMA(t146, P[363], DERIVE_FMA(t145, P[339], DERIVE_FMA(t144, P[315], DERIVE_FMA(t87, P[75], DERIVE_FMA(t143, P[51], DERIVE_FMA(t85, P[27], DERIVE_FMA(t84, P[3], P[147])))))));
+    const double t265 = DERIVE_FMA(t136, P[360], DERIVE_FMA(t135, P[336], DERIVE_FMA(t134, P[312], DERIVE_FMA(t96, P[72], DERIVE_FMA(t133, P[48], DERIVE_FMA(t94, P[24], DERIVE_FMA(t93, P[0], P[144])))))));
+    const double t266 = DERIVE_FMA(t136, P[361], DERIVE_FMA(t135, P[337], DERIVE_FMA(t134, P[313], DERIVE_FMA(t96, P[73], DERIVE_FMA(t133, P[49], DERIVE_FMA(t94, P[25], DERIVE_FMA(t93, P[1], P[145])))))));
+    const double t267 = DERIVE_FMA(t136, P[362], DERIVE_FMA(t135, P[338], DERIVE_FMA(t134, P[314], DERIVE_FMA(t96, P[74], DERIVE_FMA(t133, P[50], DERIVE_FMA(t94, P[26], DERIVE_FMA(t93, P[2], P[146])))))));
+    const double t268 = DERIVE_FMA(t136, P[363], DERIVE_FMA(t135, P[339], DERIVE_FMA(t134, P[315], DERIVE_FMA(t96, P[75], DERIVE_FMA(t133, P[51], DERIVE_FMA(t94, P[27], DERIVE_FMA(t93, P[3], P[147])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t279_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
-    const derive_vd v_t279_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t279_0);
-    const derive_vd v_t279_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t279_1);
-    const derive_vd v_t279_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t279_2);
-    const derive_vd v_t279_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t279_3);
-    const derive_vd v_t279_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t279_4);
-    const derive_vd v_t279 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t279_5);
-    const double t279 = v_t279[0];
-    const double t280 = v_t279[1];
-    const double t281 = v_t279[2];
+    const derive_vd v_t269_0 = DERIVE_VFMA(((derive_vd){t93, t93, t93, t93}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const derive_vd v_t269_1 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t269_0);
+    const derive_vd v_t269_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t269_1);
+    const derive_vd v_t269_3 = DERIVE_VFMA(((derive_vd){t96, t96, t96, t96}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t269_2);
+    const derive_vd v_t269_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t269_3);
+    const derive_vd v_t269_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t269_4);
+    const derive_vd v_t269 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t269_5);
+    const double t269 = v_t269[0];
+    const double t270 = v_t269[1];
+    const double t271 = v_t269[2];
     #else
-    const double t279 = DERIVE_FMA(t146, P[364], DERIVE_FMA(t145, P[340], DERIVE_FMA(t144, P[316], DERIVE_FMA(t87, P[76], DERIVE_FMA(t143, P[52], DERIVE_FMA(t85, P[28], DERIVE_FMA(t84, P[4], P[148])))))));
-    const double t280 = DERIVE_FMA(t146, P[365], DERIVE_FMA(t145, P[341], DERIVE_FMA(t144, P[317], DERIVE_FMA(t87, P[77], DERIVE_FMA(t143, P[53], DERIVE_FMA(t85, P[29], DERIVE_FMA(t84, P[5], P[149])))))));
-    const double t281 = DERIVE_FMA(t146, P[366], DERIVE_FMA(t145, P[342], DERIVE_FMA(t144, P[318], DERIVE_FMA(t87, P[78], DERIVE_FMA(t143, P[54], DERIVE_FMA(t85, P[30], DERIVE_FMA(t84, P[6], P[150])))))));
+    const double t269 = DERIVE_FMA(t136, P[364], DERIVE_FMA(t135, P[340], DERIVE_FMA(t134, P[316], DERIVE_FMA(t96, P[76], DERIVE_FMA(t133, P[52], DERIVE_FMA(t94, P[28], DERIVE_FMA(t93, P[4], P[148])))))));
+    const double t270 = DERIVE_FMA(t136, P[365], DERIVE_FMA(t135, P[341], DERIVE_FMA(t134, P[317], DERIVE_FMA(t96, P[77], DERIVE_FMA(t133, P[53], DERIVE_FMA(t94, P[29], DERIVE_FMA(t93, P[5], P[149])))))));
+    const double t271 = DERIVE_FMA(t136, P[366], DERIVE_FMA(t135, P[342], DERIVE_FMA(t134, P[318], DERIVE_FMA(t96, P[78], DERIVE_FMA(t133, P[54], DERIVE_FMA(t94, P[30], DERIVE_FMA(t93, P[6], P[150])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t283_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t283_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t283_0);
-    const derive_vd v_t283_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t283_1);
-    const derive_vd v_t283_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t283_2);
-    const derive_vd v_t283_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t283_3);
-    const derive_vd v_t283_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t283_4);
-    const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t283_5);
-    const double t285 = v_t283[2];
-    const double t286 = v_t283[3];
+    const derive_vd v_t273_0 = DERIVE_VFMA(((derive_vd){t93, t93, t93, t93}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t273_1 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t273_0);
+    const derive_vd v_t273_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t273_1);
+    const derive_vd v_t273_3 = DERIVE_VFMA(((derive_vd){t96, t96, t96, t96}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t273_2);
+    const derive_vd v_t273_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t273_3);
+    const derive_vd v_t273_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t273_4);
+    const derive_vd v_t273 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t273_5);
+    const double t275 = v_t273[2];
+    const double t276 = v_t273[3];
     #else
-    const double t285 = DERIVE_FMA(t146, P[370], DERIVE_FMA(t145, P[346], DERIVE_FMA(t144, P[322], DERIVE_FMA(t87, P[82], DERIVE_FMA(t143, P[58], DERIVE_FMA(t85, P[34], DERIVE_FMA(t84, P[10], P[154])))))));
-    const double t286 = DERIVE_FMA(t146, P[371], DERIVE_FMA(t145, P[347], DERIVE_FMA(t144, P[323], DERIVE_FMA(t87, P[83], DERIVE_FMA(t143, P[59], DERIVE_FMA(t85, P[35], DERIVE_FMA(t84, P[11], P[155])))))));
+    const double t275 = DERIVE_FMA(t136, P[370], DERIVE_FMA(t135, P[346], DERIVE_FMA(t134, P[322], DERIVE_FMA(t96, P[82], DERIVE_FMA(t133, P[58], DERIVE_FMA(t94, P[34], DERIVE_FMA(t93, P[10], P[154])))))));
+    const double t276 = DERIVE_FMA(t136, P[371], DERIVE_FMA(t135, P[347], DERIVE_FMA(t134, P[323], DERIVE_FMA(t96, P[83], DERIVE_FMA(t133, P[59], DERIVE_FMA(t94, P[35], DERIVE_FMA(t93, P[11], P[155])))))));
+    P_new[154] = t275;
+    P_new[246] = t275;
+    P_new[155] = t276;
+    P_new[270] = t276;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t287_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t287_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t287_0);
-    const derive_vd v_t287_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t287_1);
-    const derive_vd v_t287_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t287_2);
-    const derive_vd v_t287_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t287_3);
-    const derive_vd v_t287_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t287_4);
-    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t287_5);
-    const double t287 = v_t287[0];
-    const double t288 = v_t287[1];
-    const double t289 = v_t287[2];
-    const double t290 = v_t287[3];
+    const derive_vd v_t277_0 = DERIVE_VFMA(((derive_vd){t93, t93, t93, t93}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t277_1 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t277_0);
+    const derive_vd v_t277_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t277_1);
+    const derive_vd v_t277_3 = DERIVE_VFMA(((derive_vd){t96, t96, t96, t96}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t277_2);
+    const derive_vd v_t277_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t277_3);
+    const derive_vd v_t277_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t277_4);
+    const derive_vd v_t277 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t277_5);
+    const double t277 = v_t277[0];
+    const double t278 = v_t277[1];
+    const double t279 = v_t277[2];
+    const double t280 = v_t277[3];
     #else
-    const double t287 = DERIVE_FMA(t146, P[372], DERIVE_FMA(t145, P[348], DERIVE_FMA(t144, P[324], DERIVE_FMA(t87, P[84], DERIVE_FMA(t143, P[60], DERIVE_FMA(t85, P[36], DERIVE_FMA(t84, P[12], P[156])))))));
-    const double t288 = DERIVE_FMA(t146, P[373], DERIVE_FMA(t145, P[349], DERIVE_FMA(t144, P[325], DERIVE_FMA(t87, P[85], DERIVE_FMA(t143, P[61], DERIVE_FMA(t85, P[37], DERIVE_FMA(t84, P[13], P[157])))))));
-    const double t289 = DERIVE_FMA(t146, P[374], DERIVE_FMA(t145, P[350], DERIVE_FMA(t144, P[326], DERIVE_FMA(t87, P[86], DERIVE_FMA(t143, P[62], DERIVE_FMA(t85, P[38], DERIVE_FMA(t84, P[14], P[158])))))));
-    const double t290 = DERIVE_FMA(t146, P[375], DERIVE_FMA(t145, P[351], DERIVE_FMA(t144, P[327], DERIVE_FMA(t87, P[87], DERIVE_FMA(t143, P[63], DERIVE_FMA(t85, P[39], DERIVE_FMA(t84, P[15], P[159])))))));
+    const double t277 = DERIVE_FMA(t136, P[372], DERIVE_FMA(t135, P[348], DERIVE_FMA(t134, P[324], DERIVE_FMA(t96, P[84], DERIVE_FMA(t133, P[60], DERIVE_FMA(t94, P[36], DERIVE_FMA(t93, P[12], P[156])))))));
+    const double t278 = DERIVE_FMA(t136, P[373], DERIVE_FMA(t135, P[349], DERIVE_FMA(t134, P[325], DERIVE_FMA(t96, P[85], DERIVE_FMA(t133, P[61], DERIVE_FMA(t94, P[37], DERIVE_FMA(t93, P[13], P[157])))))));
+    const double t279 = DERIVE_FMA(t136, P[374], DERIVE_FMA(t135, P[350], DERIVE_FMA(t134, P[326], DERIVE_FMA(t96, P[86], DERIVE_FMA(t133, P[62], DERIVE_FMA(t94, P[38], DERIVE_FMA(t93, P[14], P[158])))))));
+    const double t280 = DERIVE_FMA(t136, P[375], DERIVE_FMA(t135, P[351], DERIVE_FMA(t134, P[327], DERIVE_FMA(t96, P[87], DERIVE_FMA(t133, P[63], DERIVE_FMA(t94, P[39], DERIVE_FMA(t93, P[15], P[159])))))));
+    P_new[156] = t277;
+    P_new[294] = t277;
+    P_new[157] = t278;
+    P_new[318] = t278;
+    P_new[158] = t279;
+    P_new[342] = t279;
+    P_new[159] = t280;
+    P_new[366] = t280;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t291_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t291_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t291_0);
-    const derive_vd v_t291_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t291_1);
-    const derive_vd v_t291_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t291_2);
-    const derive_vd v_t291_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t291_3);
-    const derive_vd v_t291_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t291_4);
-    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t291_5);
+    const derive_vd v_t281_0 = DERIVE_VFMA(((derive_vd){t93, t93, t93, t93}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
+    const derive_vd v_t281_1 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t281_0);
+    const derive_vd v_t281_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t281_1);
+    const derive_vd v_t281_3 = DERIVE_VFMA(((derive_vd){t96, t96, t96, t96}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t281_2);
+    const derive_vd v_t281_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t281_3);
+    const derive_vd v_t281_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t281_4);
+    const derive_vd v_t281 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t281_5);
     #else
-    const double t291 = DERIVE_FMA(t146, P[376], DERIVE_FMA(t145, P[352], DERIVE_FMA(t144, P[328], DERIVE_FMA(t87, P[88], DERIVE_FMA(t143, P[64], DERIVE_FMA(t85, P[40], DERIVE_FMA(t84, P[16], P[160])))))));
-    const double t292 = DERIVE_FMA(t146, P[377], DERIVE_FMA(t145, P[353], DERIVE_FMA(t144, P[329], DERIVE_FMA(t87, P[89], DERIVE_FMA(t143, P[65], DERIVE_FMA(t85, P[41], DERIVE_FMA(t84, P[17], P[161])))))));
-    const double t293 = DERIVE_FMA(t146, P[378], DERIVE_FMA(t145, P[354], DERIVE_FMA(t144, P[330], DERIVE_FMA(t87, P[90], DERIVE_FMA(t143, P[66], DERIVE_FMA(t85, P[42], DERIVE_FMA(t84, P[18], P[162])))))));
-    const double t294 = DERIVE_FMA(t146, P[379], DERIVE_FMA(t145, P[355], DERIVE_FMA(t144, P[331], DERIVE_FMA(t87, P[91], DERIVE_FMA(t143, P[67], DERIVE_FMA(t85, P[43], DERIVE_FMA(t84, P[19], P[163])))))));
+    const double t281 = DERIVE_FMA(t136, P[376], DERIVE_FMA(t135, P[352], DERIVE_FMA(t134, P[328], DERIVE_FMA(t96, P[88], DERIVE_FMA(t133, P[64], DERIVE_FMA(t94, P[40], DERIVE_FMA(t93, P[16], P[160])))))));
+    const double t282 = DERIVE_FMA(t136, P[377], DERIVE_FMA(t135, P[353], DERIVE_FMA(t134, P[329], DERIVE_FMA(t96, P[89], DERIVE_FMA(t133, P[65], DERIVE_FMA(t94, P[41], DERIVE_FMA(t93, P[17], P[161])))))));
+    const double t283 = DERIVE_FMA(t136, P[378], DERIVE_FMA(t135, P[354], DERIVE_FMA(t134, P[330], DERIVE_FMA(t96, P[90], DERIVE_FMA(t133, P[66], DERIVE_FMA(t94, P[42], DERIVE_FMA(t93, P[18], P[162])))))));
+    const double t284 = DERIVE_FMA(t136, P[379], DERIVE_FMA(t135, P[355], DERIVE_FMA(t134, P[331], DERIVE_FMA(t96, P[91], DERIVE_FMA(t133, P[67], DERIVE_FMA(t94, P[43], DERIVE_FMA(t93, P[19], P[163])))))));
+    P_new[160] = t281;
+    P_new[390] = t281;
+    P_new[161] = t282;
+    P_new[414] = t282;
+    P_new[162] = t283;
+    P_new[438] = t283;
+    P_new[163] = t284;
+    P_new[462] = t284;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t295_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t295_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t295_0);
-    const derive_vd v_t295_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t295_1);
-    const derive_vd v_t295_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t295_2);
-    const derive_vd v_t295_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t295_3);
-    const derive_vd v_t295_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t295_4);
-    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t295_5);
+    const derive_vd v_t285_0 = DERIVE_VFMA(((derive_vd){t93, t93, t93, t93}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
+    const derive_vd v_t285_1 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t285_0);
+    const derive_vd v_t285_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t285_1);
+    const derive_vd v_t285_3 = DERIVE_VFMA(((derive_vd){t96, t96, t96, t96}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t285_2);
+    const derive_vd v_t285_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t285_3);
+    const derive_vd v_t285_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t285_4);
+    const derive_vd v_t285 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t285_5);
     #else
-    const double t295 = DERIVE_FMA(t146, P[380], DERIVE_FMA(t145, P[356], DERIVE_FMA(t144, P[332], DERIVE_FMA(t87, P[92], DERIVE_FMA(t143, P[68], DERIVE_FMA(t85, P[44], DERIVE_FMA(t84, P[20], P[164])))))));
-    const double t296 = DERIVE_FMA(t146, P[381], DERIVE_FMA(t145, P[357], DERIVE_FMA(t144, P[333], DERIVE_FMA(t87, P[93], DERIVE_FMA(t143, P[69], DERIVE_FMA(t85, P[45], DERIVE_FMA(t84, P[21], P[165])))))));
-    const double t297 = DERIVE_FMA(t146, P[382], DERIVE_FMA(t145, P[358], DERIVE_FMA(t144, P[334], DERIVE_FMA(t87, P[94], DERIVE_FMA(t143, P[70], DERIVE_FMA(t85, P[46], DERIVE_FMA(t84, P[22], P[166])))))));
-    const double t298 = DERIVE_FMA(t146, P[383], DERIVE_FMA(t145, P[359], DERIVE_FMA(t144, P[335], DERIVE_FMA(t87, P[95], DERIVE_FMA(t143, P[71], DERIVE_FMA(t85, P[47], DERIVE_FMA(t84, P[23], P[167])))))));
+    const double t285 = DERIVE_FMA(t136, P[380], DERIVE_FMA(t135, P[356], DERIVE_FMA(t134, P[332], DERIVE_FMA(t96, P[92], DERIVE_FMA(t133, P[68], DERIVE_FMA(t94, P[44], DERIVE_FMA(t93, P[20], P[164])))))));
+    const double t286 = DERIVE_FMA(t136, P[381], DERIVE_FMA(t135, P[357], DERIVE_FMA(t134, P[333], DERIVE_FMA(t96, P[93], DERIVE_FMA(t133, P[69], DERIVE_FMA(t94, P[45], DERIVE_FMA(t93, P[21], P[165])))))));
+    const double t287 = DERIVE_FMA(t136, P[382], DERIVE_FMA(t135, P[358], DERIVE_FMA(t134, P[334], DERIVE_FMA(t96, P[94], DERIVE_FMA(t133, P[70], DERIVE_FMA(t94, P[46], DERIVE_FMA(t93, P[22], P[166])))))));
+    const double t288 = DERIVE_FMA(t136, P[383], DERIVE_FMA(t135, P[359], DERIVE_FMA(t134, P[335], DERIVE_FMA(t96, P[95], DERIVE_FMA(t133, P[71], DERIVE_FMA(t94, P[47], DERIVE_FMA(t93, P[23], P[167])))))));
+    P_new[164] = t285;
+    P_new[486] = t285;
+    P_new[165] = t286;
+    P_new[510] = t286;
+    P_new[166] = t287;
+    P_new[534] = t287;
+    P_new[167] = t288;
+    P_new[558] = t288;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[168], P[169], P[170], P[171]}));
-    const double t299 = v_t299[0];
-    const double t300 = v_t299[1];
-    const double t301 = v_t299[2];
-    const double t302 = v_t299[3];
+    const derive_vd v_t289 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[168], P[169], P[170], P[171]}));
+    const double t289 = v_t289[0];
+    const double t290 = v_t289[1];
+    const double t291 = v_t289[2];
+    const double t292 = v_t289[3];
     #else
-    const double t299 = DERIVE_FMA(p[0], P[96], P[168]);
-    const double t300 = DERIVE_FMA(p[0], P[97], P[169]);
-    const double t301 = DERIVE_FMA(p[0], P[98], P[170]);
-    const double t302 = DERIVE_FMA(p[0], P[99], P[171]);
+    const double t289 = DERIVE_FMA(p[0], P[96], P[168]);
+    const double t290 = DERIVE_FMA(p[0], P[97], P[169]);
+    const double t291 = DERIVE_FMA(p[0], P[98], P[170]);
+    const double t292 = DERIVE_FMA(p[0], P[99], P[171]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[100], P[101], P[102], P[103]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const double t303 = v_t303[0];
-    const double t304 = v_t303[1];
-    const double t305 = v_t303[2];
-    const double t306 = v_t303[3];
+    const derive_vd v_t293 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[100], P[101], P[102], P[103]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
+    const double t293 = v_t293[0];
+    const double t294 = v_t293[1];
+    const double t295 = v_t293[2];
+    const double t296 = v_t293[3];
     #else
-    const double t303 = DERIVE_FMA(p[0], P[100], P[172]);
-    const double t304 = DERIVE_FMA(p[0], P[101], P[173]);
-    const double t305 = DERIVE_FMA(p[0], P[102], P[174]);
-    const double t306 = DERIVE_FMA(p[0], P[103], P[175]);
+    const double t293 = DERIVE_FMA(p[0], P[100], P[172]);
+    const double t294 = DERIVE_FMA(p[0], P[101], P[173]);
+    const double t295 = DERIVE_FMA(p[0], P[102], P[174]);
+    const double t296 = DERIVE_FMA(p[0], P[103], P[175]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[104], P[105], P[106], P[107]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const double t309 = v_t307[2];
-    const double t310 = v_t307[3];
-    *(derive_vd_unaligned *)&P_new[244] = ((derive_vd){t237, t261, t285, t309});
-    *(derive_vd_unaligned *)&P_new[268] = ((derive_vd){t238, t262, t286, t310});
+    const derive_vd v_t297 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[104], P[105], P[106], P[107]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const double t299 = v_t297[2];
+    const double t300 = v_t297[3];
+    *(derive_vd_unaligned *)&P_new[244] = ((derive_vd){t227, t251, t275, t299});
+    *(derive_vd_unaligned *)&P_new[268] = ((derive_vd){t228, t252, t276, t300});
     #else
-    const double t309 = DERIVE_FMA(p[0], P[106], P[178]);
-    const double t310 = DERIVE_FMA(p[0], P[107], P[179]);
+    const double t299 = DERIVE_FMA(p[0], P[106], P[178]);
+    const double t300 = DERIVE_FMA(p[0], P[107], P[179]);
+    P_new[178] = t299;
+    P_new[247] = t299;
+    P_new[179] = t300;
+    P_new[271] = t300;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
-    const double t311 = v_t311[0];
-    const double t312 = v_t311[1];
-    const double t313 = v_t311[2];
-    const double t314 = v_t311[3];
-    const derive_vd tr_v_t239_0 = __builtin_shufflevector(v_t239, v_t263, 0, 4, 2, 6);
-    const derive_vd tr_v_t239_1 = __builtin_shufflevector(v_t239, v_t263, 1, 5, 3, 7);
-    const derive_vd tr_v_t239_2 = __builtin_shufflevector(v_t287, v_t311, 0, 4, 2, 6);
-    const derive_vd tr_v_t239_3 = __builtin_shufflevector(v_t287, v_t311, 1, 5, 3, 7);
-    const derive_vd tr_v_t239_c0 = __builtin_shufflevector(tr_v_t239_0, tr_v_t239_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t239_c1 = __builtin_shufflevector(tr_v_t239_1, tr_v_t239_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t239_c2 = __builtin_shufflevector(tr_v_t239_0, tr_v_t239_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t239_c3 = __builtin_shufflevector(tr_v_t239_1, tr_v_t239_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[108] = v_t239;
-    *(derive_vd_unaligned *)&P_new[132] = v_t263;
-    *(derive_vd_unaligned *)&P_new[156] = v_t287;
-    *(derive_vd_unaligned *)&P_new[180] = v_t311;
-    *(derive_vd_unaligned *)&P_new[292] = tr_v_t239_c0;
-    *(derive_vd_unaligned *)&P_new[316] = tr_v_t239_c1;
-    *(derive_vd_unaligned *)&P_new[340] = tr_v_t239_c2;
-    *(derive_vd_unaligned *)&P_new[364] = tr_v_t239_c3;
+    const derive_vd v_t301 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const double t301 = v_t301[0];
+    const double t302 = v_t301[1];
+    const double t303 = v_t301[2];
+    const double t304 = v_t301[3];
+    const derive_vd tr_v_t229_0 = __builtin_shufflevector(v_t229, v_t253, 0, 4, 2, 6);
+    const derive_vd tr_v_t229_1 = __builtin_shufflevector(v_t229, v_t253, 1, 5, 3, 7);
+    const derive_vd tr_v_t229_2 = __builtin_shufflevector(v_t277, v_t301, 0, 4, 2, 6);
+    const derive_vd tr_v_t229_3 = __builtin_shufflevector(v_t277, v_t301, 1, 5, 3, 7);
+    const derive_vd tr_v_t229_c0 = __builtin_shufflevector(tr_v_t229_0, tr_v_t229_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t229_c1 = __builtin_shufflevector(tr_v_t229_1, tr_v_t229_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t229_c2 = __builtin_shufflevector(tr_v_t229_0, tr_v_t229_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t229_c3 = __builtin_shufflevector(tr_v_t229_1, tr_v_t229_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[108] = v_t229;
+    *(derive_vd_unaligned *)&P_new[132] = v_t253;
+    *(derive_vd_unaligned *)&P_new[156] = v_t277;
+    *(derive_vd_unaligned *)&P_new[180] = v_t301;
+    *(derive_vd_unaligned *)&P_new[292] = tr_v_t229_c0;
+    *(derive_vd_unaligned *)&P_new[316] = tr_v_t229_c1;
+    *(derive_vd_unaligned *)&P_new[340] = tr_v_t229_c2;
+    *(derive_vd_unaligned *)&P_new[364] = tr_v_t229_c3;
     #else
-    const double t311 = DERIVE_FMA(p[0], P[108], P[180]);
-    const double t312 = DERIVE_FMA(p[0], P[109], P[181]);
-    const double t313 = DERIVE_FMA(p[0], P[110], P[182]);
-    const double t314 = DERIVE_FMA(p[0], P[111], P[183]);
+    const double t301 = DERIVE_FMA(p[0], P[108], P[180]);
+    const double t302 = DERIVE_FMA(p[0], P[109], P[181]);
+    const double t303 = DERIVE_FMA(p[0], P[110], P[182]);
+    const double t304 = DERIVE_FMA(p[0], P[111], P[183]);
+    P_new[180] = t301;
+    P_new[295] = t301;
+    P_new[181] = t302;
+    P_new[319] = t302;
+    P_new[182] = t303;
+    P_new[343] = t303;
+    P_new[183] = t304;
+    P_new[367] = t304;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd tr_v_t243_0 = __builtin_shufflevector(v_t243, v_t267, 0, 4, 2, 6);
-    const derive_vd tr_v_t243_1 = __builtin_shufflevector(v_t243, v_t267, 1, 5, 3, 7);
-    const derive_vd tr_v_t243_2 = __builtin_shufflevector(v_t291, v_t315, 0, 4, 2, 6);
-    const derive_vd tr_v_t243_3 = __builtin_shufflevector(v_t291, v_t315, 1, 5, 3, 7);
-    const derive_vd tr_v_t243_c0 = __builtin_shufflevector(tr_v_t243_0, tr_v_t243_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t243_c1 = __builtin_shufflevector(tr_v_t243_1, tr_v_t243_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t243_c2 = __builtin_shufflevector(tr_v_t243_0, tr_v_t243_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t243_c3 = __builtin_shufflevector(tr_v_t243_1, tr_v_t243_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[112] = v_t243;
-    *(derive_vd_unaligned *)&P_new[136] = v_t267;
-    *(derive_vd_unaligned *)&P_new[160] = v_t291;
-    *(derive_vd_unaligned *)&P_new[184] = v_t315;
-    *(derive_vd_unaligned *)&P_new[388] = tr_v_t243_c0;
-    *(derive_vd_unaligned *)&P_new[412] = tr_v_t243_c1;
-    *(derive_vd_unaligned *)&P_new[436] = tr_v_t243_c2;
-    *(derive_vd_unaligned *)&P_new[460] = tr_v_t243_c3;
+    const derive_vd v_t305 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd tr_v_t233_0 = __builtin_shufflevector(v_t233, v_t257, 0, 4, 2, 6);
+    const derive_vd tr_v_t233_1 = __builtin_shufflevector(v_t233, v_t257, 1, 5, 3, 7);
+    const derive_vd tr_v_t233_2 = __builtin_shufflevector(v_t281, v_t305, 0, 4, 2, 6);
+    const derive_vd tr_v_t233_3 = __builtin_shufflevector(v_t281, v_t305, 1, 5, 3, 7);
+    const derive_vd tr_v_t233_c0 = __builtin_shufflevector(tr_v_t233_0, tr_v_t233_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t233_c1 = __builtin_shufflevector(tr_v_t233_1, tr_v_t233_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t233_c2 = __builtin_shufflevector(tr_v_t233_0, tr_v_t233_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t233_c3 = __builtin_shufflevector(tr_v_t233_1, tr_v_t233_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[112] = v_t233;
+    *(derive_vd_unaligned *)&P_new[136] = v_t257;
+    *(derive_vd_unaligned *)&P_new[160] = v_t281;
+    *(derive_vd_unaligned *)&P_new[184] = v_t305;
+    *(derive_vd_unaligned *)&P_new[388] = tr_v_t233_c0;
+    *(derive_vd_unaligned *)&P_new[412] = tr_v_t233_c1;
+    *(derive_vd_unaligned *)&P_new[436] = tr_v_t233_c2;
+    *(derive_vd_unaligned *)&P_new[460] = tr_v_t233_c3;
     #else
-    const double t315 = DERIVE_FMA(p[0], P[112], P[184]);
-    const double t316 = DERIVE_FMA(p[0], P[113], P[185]);
-    const double t317 = DERIVE_FMA(p[0], P[114], P[186]);
-    const double t318 = DERIVE_FMA(p[0], P[115], P[187]);
+    const double t305 = DERIVE_FMA(p[0], P[112], P[184]);
+    const double t306 = DERIVE_FMA(p[0], P[113], P[185]);
+    const double t307 = DERIVE_FMA(p[0], P[114], P[186]);
+    const double t308 = DERIVE_FMA(p[0], P[115], P[187]);
+    P_new[184] = t305;
+    P_new[391] = t305;
+    P_new[185] = t306;
+    P_new[415] = t306;
+    P_new[186] = t307;
+    P_new[439] = t307;
+    P_new[187] = t308;
+    P_new[463] = t308;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t319 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd tr_v_t247_0 = __builtin_shufflevector(v_t247, v_t271, 0, 4, 2, 6);
-    const derive_vd tr_v_t247_1 = __builtin_shufflevector(v_t247, v_t271, 1, 5, 3, 7);
-    const derive_vd tr_v_t247_2 = __builtin_shufflevector(v_t295, v_t319, 0, 4, 2, 6);
-    const derive_vd tr_v_t247_3 = __builtin_shufflevector(v_t295, v_t319, 1, 5, 3, 7);
-    const derive_vd tr_v_t247_c0 = __builtin_shufflevector(tr_v_t247_0, tr_v_t247_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t247_c1 = __builtin_shufflevector(tr_v_t247_1, tr_v_t247_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t247_c2 = __builtin_shufflevector(tr_v_t247_0, tr_v_t247_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t247_c3 = __builtin_shufflevector(tr_v_t247_1, tr_v_t247_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[116] = v_t247;
-    *(derive_vd_unaligned *)&P_new[140] = v_t271;
-    *(derive_vd_unaligned *)&P_new[164] = v_t295;
-    *(derive_vd_unaligned *)&P_new[188] = v_t319;
-    *(derive_vd_unaligned *)&P_new[484] = tr_v_t247_c0;
-    *(derive_vd_unaligned *)&P_new[508] = tr_v_t247_c1;
-    *(derive_vd_unaligned *)&P_new[532] = tr_v_t247_c2;
-    *(derive_vd_unaligned *)&P_new[556] = tr_v_t247_c3;
+    const derive_vd v_t309 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd tr_v_t237_0 = __builtin_shufflevector(v_t237, v_t261, 0, 4, 2, 6);
+    const derive_vd tr_v_t237_1 = __builtin_shufflevector(v_t237, v_t261, 1, 5, 3, 7);
+    const derive_vd tr_v_t237_2 = __builtin_shufflevector(v_t285, v_t309, 0, 4, 2, 6);
+    const derive_vd tr_v_t237_3 = __builtin_shufflevector(v_t285, v_t309, 1, 5, 3, 7);
+    const derive_vd tr_v_t237_c0 = __builtin_shufflevector(tr_v_t237_0, tr_v_t237_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t237_c1 = __builtin_shufflevector(tr_v_t237_1, tr_v_t237_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t237_c2 = __builtin_shufflevector(tr_v_t237_0, tr_v_t237_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t237_c3 = __builtin_shufflevector(tr_v_t237_1, tr_v_t237_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[116] = v_t237;
+    *(derive_vd_unaligned *)&P_new[140] = v_t261;
+    *(derive_vd_unaligned *)&P_new[164] = v_t285;
+    *(derive_vd_unaligned *)&P_new[188] = v_t309;
+    *(derive_vd_unaligned *)&P_new[484] = tr_v_t237_c0;
+    *(derive_vd_unaligned *)&P_new[508] = tr_v_t237_c1;
+    *(derive_vd_unaligned *)&P_new[532] = tr_v_t237_c2;
+    *(derive_vd_unaligned *)&P_new[556] = tr_v_t237_c3;
     #else
-    const double t319 = DERIVE_FMA(p[0], P[116], P[188]);
-    const double t320 = DERIVE_FMA(p[0], P[117], P[189]);
-    const double t321 = DERIVE_FMA(p[0], P[118], P[190]);
-    const double t322 = DERIVE_FMA(p[0], P[119], P[191]);
+    const double t309 = DERIVE_FMA(p[0], P[116], P[188]);
+    const double t310 = DERIVE_FMA(p[0], P[117], P[189]);
+    const double t311 = DERIVE_FMA(p[0], P[118], P[190]);
+    const double t312 = DERIVE_FMA(p[0], P[119], P[191]);
+    P_new[188] = t309;
+    P_new[487] = t309;
+    P_new[189] = t310;
+    P_new[511] = t310;
+    P_new[190] = t311;
+    P_new[535] = t311;
+    P_new[191] = t312;
+    P_new[559] = t312;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t323 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
-    const double t323 = v_t323[0];
-    const double t324 = v_t323[1];
-    const double t325 = v_t323[2];
-    const double t326 = v_t323[3];
+    const derive_vd v_t313 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
+    const double t313 = v_t313[0];
+    const double t314 = v_t313[1];
+    const double t315 = v_t313[2];
+    const double t316 = v_t313[3];
     #else
-    const double t323 = DERIVE_FMA(p[0], P[120], P[192]);
-    const double t324 = DERIVE_FMA(p[0], P[121], P[193]);
-    const double t325 = DERIVE_FMA(p[0], P[122], P[194]);
-    const double t326 = DERIVE_FMA(p[0], P[123], P[195]);
+    const double t313 = DERIVE_FMA(p[0], P[120], P[192]);
+    const double t314 = DERIVE_FMA(p[0], P[121], P[193]);
+    const double t315 = DERIVE_FMA(p[0], P[122], P[194]);
+    const double t316 = DERIVE_FMA(p[0], P[123], P[195]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t327 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
-    const double t327 = v_t327[0];
-    const double t328 = v_t327[1];
-    const double t329 = v_t327[2];
-    const double t330 = v_t327[3];
+    const derive_vd v_t317 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
+    const double t317 = v_t317[0];
+    const double t318 = v_t317[1];
+    const double t319 = v_t317[2];
+    const double t320 = v_t317[3];
     #else
-    const double t327 = DERIVE_FMA(p[0], P[124], P[196]);
-    const double t328 = DERIVE_FMA(p[0], P[125], P[197]);
-    const double t329 = DERIVE_FMA(p[0], P[126], P[198]);
-    const double t330 = DERIVE_FMA(p[0], P[127], P[199]);
+    const double t317 = DERIVE_FMA(p[0], P[124], P[196]);
+    const double t318 = DERIVE_FMA(p[0], P[125], P[197]);
+    const double t319 = DERIVE_FMA(p[0], P[126], P[198]);
+    const double t320 = DERIVE_FMA(p[0], P[127], P[199]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t331 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[128], P[129], P[130], P[131]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const double t331 = v_t331[0];
-    const double t333 = v_t331[2];
-    const double t334 = v_t331[3];
+    const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[128], P[129], P[130], P[131]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const double t321 = v_t321[0];
+    const double t323 = v_t321[2];
+    const double t324 = v_t321[3];
     #else
-    const double t331 = DERIVE_FMA(p[0], P[128], P[200]);
-    const double t333 = DERIVE_FMA(p[0], P[130], P[202]);
-    const double t334 = DERIVE_FMA(p[0], P[131], P[203]);
+    const double t321 = DERIVE_FMA(p[0], P[128], P[200]);
+    const double t323 = DERIVE_FMA(p[0], P[130], P[202]);
+    const double t324 = DERIVE_FMA(p[0], P[131], P[203]);
+    P_new[202] = t323;
+    P_new[248] = t323;
+    P_new[203] = t324;
+    P_new[272] = t324;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t335 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[132], P[133], P[134], P[135]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const double t335 = v_t335[0];
-    const double t336 = v_t335[1];
-    const double t337 = v_t335[2];
-    const double t338 = v_t335[3];
-    *(derive_vd_unaligned *)&P_new[204] = v_t335;
+    const derive_vd v_t325 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[132], P[133], P[134], P[135]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const double t325 = v_t325[0];
+    const double t326 = v_t325[1];
+    const double t327 = v_t325[2];
+    const double t328 = v_t325[3];
+    *(derive_vd_unaligned *)&P_new[204] = v_t325;
     #else
-    const double t335 = DERIVE_FMA(p[0], P[132], P[204]);
-    const double t336 = DERIVE_FMA(p[0], P[133], P[205]);
-    const double t337 = DERIVE_FMA(p[0], P[134], P[206]);
-    const double t338 = DERIVE_FMA(p[0], P[135], P[207]);
+    const double t325 = DERIVE_FMA(p[0], P[132], P[204]);
+    const double t326 = DERIVE_FMA(p[0], P[133], P[205]);
+    const double t327 = DERIVE_FMA(p[0], P[134], P[206]);
+    const double t328 = DERIVE_FMA(p[0], P[135], P[207]);
+    P_new[204] = t325;
+    P_new[296] = t325;
+    P_new[205] = t326;
+    P_new[320] = t326;
+    P_new[206] = t327;
+    P_new[344] = t327;
+    P_new[207] = t328;
+    P_new[368] = t328;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[136], P[137], P[138], P[139]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
-    const double t339 = v_t339[0];
-    const double t340 = v_t339[1];
-    const double t341 = v_t339[2];
-    const double t342 = v_t339[3];
-    *(derive_vd_unaligned *)&P_new[208] = v_t339;
+    const derive_vd v_t329 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[136], P[137], P[138], P[139]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
+    const double t329 = v_t329[0];
+    const double t330 = v_t329[1];
+    const double t331 = v_t329[2];
+    const double t332 = v_t329[3];
+    *(derive_vd_unaligned *)&P_new[208] = v_t329;
     #else
-    const double t339 = DERIVE_FMA(p[0], P[136], P[208]);
-    const double t340 = DERIVE_FMA(p[0], P[137], P[209]);
-    const double t341 = DERIVE_FMA(p[0], P[138], P[210]);
-    const double t342 = DERIVE_FMA(p[0], P[139], P[211]);
+    const double t329 = DERIVE_FMA(p[0], P[136], P[208]);
+    const double t330 = DERIVE_FMA(p[0], P[137], P[209]);
+    const double t331 = DERIVE_FMA(p[0], P[138], P[210]);
+    const double t332 = DERIVE_FMA(p[0], P[139], P[211]);
+    P_new[208] = t329;
+    P_new[392] = t329;
+    P_new[209] = t330;
+    P_new[416] = t330;
+    P_new[210] = t331;
+    P_new[440] = t331;
+    P_new[211] = t332;
+    P_new[464] = t332;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[140], P[141], P[142], P[143]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
-    const double t343 = v_t343[0];
-    const double t344 = v_t343[1];
-    const double t345 = v_t343[2];
-    const double t346 = v_t343[3];
-    *(derive_vd_unaligned *)&P_new[212] = v_t343;
+    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[140], P[141], P[142], P[143]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
+    const double t333 = v_t333[0];
+    const double t334 = v_t333[1];
+    const double t335 = v_t333[2];
+    const double t336 = v_t333[3];
+    *(derive_vd_unaligned *)&P_new[212] = v_t333;
     #else
-    const double t343 = DERIVE_FMA(p[0], P[140], P[212]);
-    const double t344 = DERIVE_FMA(p[0], P[141], P[213]);
-    const double t345 = DERIVE_FMA(p[0], P[142], P[214]);
-    const double t346 = DERIVE_FMA(p[0], P[143], P[215]);
+    const double t333 = DERIVE_FMA(p[0], P[140], P[212]);
+    const double t334 = DERIVE_FMA(p[0], P[141], P[213]);
+    const double t335 = DERIVE_FMA(p[0], P[142], P[214]);
+    const double t336 = DERIVE_FMA(p[0], P[143], P[215]);
+    P_new[212] = t333;
+    P_new[488] = t333;
+    P_new[213] = t334;
+    P_new[512] = t334;
+    P_new[214] = t335;
+    P_new[536] = t335;
+    P_new[215] = t336;
+    P_new[560] = t336;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[144], P[145], P[146], P[147]}), ((derive_vd){P[216], P[217], P[218], P[219]}));
-    const double t347 = v_t347[0];
-    const double t348 = v_t347[1];
-    const double t349 = v_t347[2];
-    const double t350 = v_t347[3];
+    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[144], P[145], P[146], P[147]}), ((derive_vd){P[216], P[217], P[218], P[219]}));
+    const double t337 = v_t337[0];
+    const double t338 = v_t337[1];
+    const double t339 = v_t337[2];
+    const double t340 = v_t337[3];
     #else
-    const double t347 = DERIVE_FMA(p[0], P[144], P[216]);
-    const double t348 = DERIVE_FMA(p[0], P[145], P[217]);
-    const double t349 = DERIVE_FMA(p[0], P[146], P[218]);
-    const double t350 = DERIVE_FMA(p[0], P[147], P[219]);
+    const double t337 = DERIVE_FMA(p[0], P[144], P[216]);
+    const double t338 = DERIVE_FMA(p[0], P[145], P[217]);
+    const double t339 = DERIVE_FMA(p[0], P[146], P[218]);
+    const double t340 = DERIVE_FMA(p[0], P[147], P[219]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t351 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
-    const double t351 = v_t351[0];
-    const double t352 = v_t351[1];
-    const double t353 = v_t351[2];
-    const double t354 = v_t351[3];
+    const derive_vd v_t341 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
+    const double t341 = v_t341[0];
+    const double t342 = v_t341[1];
+    const double t343 = v_t341[2];
+    const double t344 = v_t341[3];
     #else
-    const double t351 = DERIVE_FMA(p[0], P[148], P[220]);
-    const double t352 = DERIVE_FMA(p[0], P[149], P[221]);
-    const double t353 = DERIVE_FMA(p[0], P[150], P[222]);
-    const double t354 = DERIVE_FMA(p[0], P[151], P[223]);
+    const double t341 = DERIVE_FMA(p[0], P[148], P[220]);
+    const double t342 = DERIVE_FMA(p[0], P[149], P[221]);
+    const double t343 = DERIVE_FMA(p[0], P[150], P[222]);
+    const double t344 = DERIVE_FMA(p[0], P[151], P[223]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t355 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
-    const double t355 = v_t355[0];
-    const double t356 = v_t355[1];
-    const double t357 = v_t355[2];
-    const double t358 = v_t355[3];
+    const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
+    const double t345 = v_t345[0];
+    const double t346 = v_t345[1];
+    const double t347 = v_t345[2];
+    const double t348 = v_t345[3];
     #else
-    const double t355 = DERIVE_FMA(p[0], P[152], P[224]);
-    const double t356 = DERIVE_FMA(p[0], P[153], P[225]);
-    const double t357 = DERIVE_FMA(p[0], P[154], P[226]);
-    const double t358 = DERIVE_FMA(p[0], P[155], P[227]);
+    const double t345 = DERIVE_FMA(p[0], P[152], P[224]);
+    const double t346 = DERIVE_FMA(p[0], P[153], P[225]);
+    const double t347 = DERIVE_FMA(p[0], P[154], P[226]);
+    const double t348 = DERIVE_FMA(p[0], P[155], P[227]);
+    P_new[226] = t347;
+    P_new[249] = t347;
+    P_new[227] = t348;
+    P_new[273] = t348;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
-    const double t359 = v_t359[0];
-    const double t360 = v_t359[1];
-    const double t361 = v_t359[2];
-    const double t362 = v_t359[3];
-    *(derive_vd_unaligned *)&P_new[228] = v_t359;
+    const derive_vd v_t349 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const double t349 = v_t349[0];
+    const double t350 = v_t349[1];
+    const double t351 = v_t349[2];
+    const double t352 = v_t349[3];
+    *(derive_vd_unaligned *)&P_new[228] = v_t349;
     #else
-    const double t359 = DERIVE_FMA(p[0], P[156], P[228]);
-    const double t360 = DERIVE_FMA(p[0], P[157], P[229]);
-    const double t361 = DERIVE_FMA(p[0], P[158], P[230]);
-    const double t362 = DERIVE_FMA(p[0], P[159], P[231]);
+    const double t349 = DERIVE_FMA(p[0], P[156], P[228]);
+    const double t350 = DERIVE_FMA(p[0], P[157], P[229]);
+    const double t351 = DERIVE_FMA(p[0], P[158], P[230]);
+    const double t352 = DERIVE_FMA(p[0], P[159], P[231]);
+    P_new[228] = t349;
+    P_new[297] = t349;
+    P_new[229] = t350;
+    P_new[321] = t350;
+    P_new[230] = t351;
+    P_new[345] = t351;
+    P_new[231] = t352;
+    P_new[369] = t352;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[160], P[161], P[162], P[163]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
-    const double t363 = v_t363[0];
-    const double t364 = v_t363[1];
-    const double t365 = v_t363[2];
-    const double t366 = v_t363[3];
-    *(derive_vd_unaligned *)&P_new[232] = v_t363;
+    const derive_vd v_t353 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[160], P[161], P[162], P[163]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const double t353 = v_t353[0];
+    const double t354 = v_t353[1];
+    const double t355 = v_t353[2];
+    const double t356 = v_t353[3];
+    *(derive_vd_unaligned *)&P_new[232] = v_t353;
     #else
-    const double t363 = DERIVE_FMA(p[0], P[160], P[232]);
-    const double t364 = DERIVE_FMA(p[0], P[161], P[233]);
-    const double t365 = DERIVE_FMA(p[0], P[162], P[234]);
-    const double t366 = DERIVE_FMA(p[0], P[163], P[235]);
+    const double t353 = DERIVE_FMA(p[0], P[160], P[232]);
+    const double t354 = DERIVE_FMA(p[0], P[161], P[233]);
+    const double t355 = DERIVE_FMA(p[0], P[162], P[234]);
+    const double t356 = DERIVE_FMA(p[0], P[163], P[235]);
+    P_new[232] = t353;
+    P_new[393] = t353;
+    P_new[233] = t354;
+    P_new[417] = t354;
+    P_new[234] = t355;
+    P_new[441] = t355;
+    P_new[235] = t356;
+    P_new[465] = t356;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[164], P[165], P[166], P[167]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const double t367 = v_t367[0];
-    const double t368 = v_t367[1];
-    const double t369 = v_t367[2];
-    const double t370 = v_t367[3];
-    *(derive_vd_unaligned *)&P_new[236] = v_t367;
+    const derive_vd v_t357 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[164], P[165], P[166], P[167]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const double t357 = v_t357[0];
+    const double t358 = v_t357[1];
+    const double t359 = v_t357[2];
+    const double t360 = v_t357[3];
+    *(derive_vd_unaligned *)&P_new[236] = v_t357;
     #else
-    const double t367 = DERIVE_FMA(p[0], P[164], P[236]);
-    const double t368 = DERIVE_FMA(p[0], P[165], P[237]);
-    const double t369 = DERIVE_FMA(p[0], P[166], P[238]);
-    const double t370 = DERIVE_FMA(p[0], P[167], P[239]);
+    const double t357 = DERIVE_FMA(p[0], P[164], P[236]);
+    const double t358 = DERIVE_FMA(p[0], P[165], P[237]);
+    const double t359 = DERIVE_FMA(p[0], P[166], P[238]);
+    const double t360 = DERIVE_FMA(p[0], P[167], P[239]);
+    P_new[236] = t357;
+    P_new[489] = t357;
+    P_new[237] = t358;
+    P_new[513] = t358;
+    P_new[238] = t359;
+    P_new[537] = t359;
+    P_new[239] = t360;
+    P_new[561] = t360;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t371_0 = (((derive_vd){t111, t113, t114, t116}) + ((derive_vd){t147, t167, t187, t207}));
-    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t148, t168, t188, t208}), v_t371_0);
-    const derive_vd v_t371_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t149, t169, t189, t209}), v_t371_1);
-    const derive_vd v_t371_3 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t150, t170, t190, t210}), v_t371_2);
-    const derive_vd v_t371_4 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t153, t173, t193, t213}), v_t371_3);
-    const derive_vd v_t371_5 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t154, t174, t194, t214}), v_t371_4);
-    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t155, t175, t195, t215}), v_t371_5);
-    const double t372 = v_t371[1];
-    const double t373 = v_t371[2];
-    const double t374 = v_t371[3];
-    *(derive_vd_unaligned *)&P_new[0] = v_t371;
+    const derive_vd v_t361_0 = (((derive_vd){t115, t108, t109, t111}) + ((derive_vd){t137, t157, t177, t197}));
+    const derive_vd v_t361_1 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t138, t158, t178, t198}), v_t361_0);
+    const derive_vd v_t361_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t139, t159, t179, t199}), v_t361_1);
+    const derive_vd v_t361_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t140, t160, t180, t200}), v_t361_2);
+    const derive_vd v_t361_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t143, t163, t183, t203}), v_t361_3);
+    const derive_vd v_t361_5 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){t144, t164, t184, t204}), v_t361_4);
+    const derive_vd v_t361 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){t145, t165, t185, t205}), v_t361_5);
+    const double t362 = v_t361[1];
+    const double t363 = v_t361[2];
+    const double t364 = v_t361[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t361;
     #else
-    const double t371 = DERIVE_FMA(t37, t155, DERIVE_FMA(t36, t154, DERIVE_FMA(t35, t153, DERIVE_FMA(t34, t150, DERIVE_FMA(t33, t149, DERIVE_FMA(t32, t148, t111 + t147))))));
-    const double t372 = DERIVE_FMA(t37, t175, DERIVE_FMA(t36, t174, DERIVE_FMA(t35, t173, DERIVE_FMA(t34, t170, DERIVE_FMA(t33, t169, DERIVE_FMA(t32, t168, t113 + t167))))));
-    const double t373 = DERIVE_FMA(t37, t195, DERIVE_FMA(t36, t194, DERIVE_FMA(t35, t193, DERIVE_FMA(t34, t190, DERIVE_FMA(t33, t189, DERIVE_FMA(t32, t188, t114 + t187))))));
-    const double t374 = DERIVE_FMA(t37, t215, DERIVE_FMA(t36, t214, DERIVE_FMA(t35, t213, DERIVE_FMA(t34, t210, DERIVE_FMA(t33, t209, DERIVE_FMA(t32, t208, t116 + t207))))));
+    const double t361 = DERIVE_FMA(t46, t145, DERIVE_FMA(t45, t144, DERIVE_FMA(t44, t143, DERIVE_FMA(t43, t140, DERIVE_FMA(t42, t139, DERIVE_FMA(t41, t138, t115 + t137))))));
+    const double t362 = DERIVE_FMA(t46, t165, DERIVE_FMA(t45, t164, DERIVE_FMA(t44, t163, DERIVE_FMA(t43, t160, DERIVE_FMA(t42, t159, DERIVE_FMA(t41, t158, t108 + t157))))));
+    const double t363 = DERIVE_FMA(t46, t185, DERIVE_FMA(t45, t184, DERIVE_FMA(t44, t183, DERIVE_FMA(t43, t180, DERIVE_FMA(t42, t179, DERIVE_FMA(t41, t178, t109 + t177))))));
+    const double t364 = DERIVE_FMA(t46, t205, DERIVE_FMA(t45, t204, DERIVE_FMA(t44, t203, DERIVE_FMA(t43, t200, DERIVE_FMA(t42, t199, DERIVE_FMA(t41, t198, t111 + t197))))));
+    P_new[0] = t361;
+    P_new[1] = t362;
+    P_new[24] = t362;
+    P_new[2] = t363;
+    P_new[48] = t363;
+    P_new[3] = t364;
+    P_new[72] = t364;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t228, t252, t276, t300}), ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t229, t253, t277, t301}), v_t375_0);
-    const derive_vd v_t375_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t230, t254, t278, t302}), v_t375_1);
-    const derive_vd v_t375_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t237, t261, t285, t309}), v_t375_2);
-    const derive_vd v_t375_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t238, t262, t286, t310}), v_t375_3);
-    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t239, t263, t287, t311}), v_t375_4);
+    const derive_vd v_t365_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t218, t242, t266, t290}), ((derive_vd){t217, t241, t265, t289}));
+    const derive_vd v_t365_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t219, t243, t267, t291}), v_t365_0);
+    const derive_vd v_t365_2 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t220, t244, t268, t292}), v_t365_1);
+    const derive_vd v_t365_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t227, t251, t275, t299}), v_t365_2);
+    const derive_vd v_t365_4 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){t228, t252, t276, t300}), v_t365_3);
+    const derive_vd v_t365 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){t229, t253, t277, t301}), v_t365_4);
     #else
-    const double t375 = DERIVE_FMA(t37, t239, DERIVE_FMA(t36, t238, DERIVE_FMA(t35, t237, DERIVE_FMA(t34, t230, DERIVE_FMA(t33, t229, DERIVE_FMA(t32, t228, t227))))));
-    const double t376 = DERIVE_FMA(t37, t263, DERIVE_FMA(t36, t262, DERIVE_FMA(t35, t261, DERIVE_FMA(t34, t254, DERIVE_FMA(t33, t253, DERIVE_FMA(t32, t252, t251))))));
-    const double t377 = DERIVE_FMA(t37, t287, DERIVE_FMA(t36, t286, DERIVE_FMA(t35, t285, DERIVE_FMA(t34, t278, DERIVE_FMA(t33, t277, DERIVE_FMA(t32, t276, t275))))));
-    const double t378 = DERIVE_FMA(t37, t311, DERIVE_FMA(t36, t310, DERIVE_FMA(t35, t309, DERIVE_FMA(t34, t302, DERIVE_FMA(t33, t301, DERIVE_FMA(t32, t300, t299))))));
+    const double t365 = DERIVE_FMA(t46, t229, DERIVE_FMA(t45, t228, DERIVE_FMA(t44, t227, DERIVE_FMA(t43, t220, DERIVE_FMA(t42, t219, DERIVE_FMA(t41, t218, t217))))));
+    const double t366 = DERIVE_FMA(t46, t253, DERIVE_FMA(t45, t252, DERIVE_FMA(t44, t251, DERIVE_FMA(t43, t244, DERIVE_FMA(t42, t243, DERIVE_FMA(t41, t242, t241))))));
+    const double t367 = DERIVE_FMA(t46, t277, DERIVE_FMA(t45, t276, DERIVE_FMA(t44, t275, DERIVE_FMA(t43, t268, DERIVE_FMA(t42, t267, DERIVE_FMA(t41, t266, t265))))));
+    const double t368 = DERIVE_FMA(t46, t301, DERIVE_FMA(t45, t300, DERIVE_FMA(t44, t299, DERIVE_FMA(t43, t292, DERIVE_FMA(t42, t291, DERIVE_FMA(t41, t290, t289))))));
+    P_new[4] = t365;
+    P_new[96] = t365;
+    P_new[5] = t366;
+    P_new[120] = t366;
+    P_new[6] = t367;
+    P_new[144] = t367;
+    P_new[7] = t368;
+    P_new[168] = t368;
     #endif
-    const double t379 = DERIVE_FMA(t335, t37, DERIVE_FMA(t334, t36, DERIVE_FMA(t333, t35, DERIVE_FMA(t326, t34, DERIVE_FMA(t325, t33, DERIVE_FMA(t32, t324, t323))))));
-    const double t380 = DERIVE_FMA(t359, t37, DERIVE_FMA(t358, t36, DERIVE_FMA(t35, t357, DERIVE_FMA(t34, t350, DERIVE_FMA(t33, t349, DERIVE_FMA(t32, t348, t347))))));
-    const double t381 = DERIVE_FMA(t174, t37, DERIVE_FMA(t173, t43, DERIVE_FMA(t170, t33, DERIVE_FMA(t169, t42, DERIVE_FMA(t167, t41, DERIVE_FMA(t133, t175, t118 + t168))))));
-    const double t382 = DERIVE_FMA(t194, t37, DERIVE_FMA(t193, t43, DERIVE_FMA(t190, t33, DERIVE_FMA(t189, t42, DERIVE_FMA(t187, t41, DERIVE_FMA(t133, t195, t119 + t188))))));
-    const double t383 = DERIVE_FMA(t214, t37, DERIVE_FMA(t213, t43, DERIVE_FMA(t210, t33, DERIVE_FMA(t209, t42, DERIVE_FMA(t207, t41, DERIVE_FMA(t133, t215, t120 + t208))))));
+    const double t369 = DERIVE_FMA(t325, t46, DERIVE_FMA(t324, t45, DERIVE_FMA(t323, t44, DERIVE_FMA(t316, t43, DERIVE_FMA(t315, t42, DERIVE_FMA(t314, t41, t313))))));
+    const double t370 = DERIVE_FMA(t349, t46, DERIVE_FMA(t348, t45, DERIVE_FMA(t347, t44, DERIVE_FMA(t340, t43, DERIVE_FMA(t339, t42, DERIVE_FMA(t338, t41, t337))))));
+    const double t371 = DERIVE_FMA(1e-06, t100*(1.0 - t34), DERIVE_FMA(t164, t46, DERIVE_FMA(t163, t52, DERIVE_FMA(t160, t42, DERIVE_FMA(t159, t51, DERIVE_FMA(t157, t50, DERIVE_FMA(t123, t165, t158)))))));
+    const double t372 = DERIVE_FMA(t184, t46, DERIVE_FMA(t183, t52, DERIVE_FMA(t180, t42, DERIVE_FMA(t179, t51, DERIVE_FMA(t177, t50, DERIVE_FMA(t123, t185, t112 + t178))))));
+    const double t373 = DERIVE_FMA(t204, t46, DERIVE_FMA(t203, t52, DERIVE_FMA(t200, t42, DERIVE_FMA(t199, t51, DERIVE_FMA(t197, t50, DERIVE_FMA(t123, t205, t113 + t198))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t384_0 = (((derive_vd){t41, t41, t41, t41}) * ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t384_1 = (v_t384_0 + ((derive_vd){t228, t252, t276, t300}));
-    const derive_vd v_t384_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t229, t253, t277, t301}), v_t384_1);
-    const derive_vd v_t384_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t230, t254, t278, t302}), v_t384_2);
-    const derive_vd v_t384_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t237, t261, t285, t309}), v_t384_3);
-    const derive_vd v_t384_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t238, t262, t286, t310}), v_t384_4);
-    const derive_vd v_t384 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t239, t263, t287, t311}), v_t384_5);
+    const derive_vd v_t374_0 = (((derive_vd){t50, t50, t50, t50}) * ((derive_vd){t217, t241, t265, t289}));
+    const derive_vd v_t374_1 = (v_t374_0 + ((derive_vd){t218, t242, t266, t290}));
+    const derive_vd v_t374_2 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){t219, t243, t267, t291}), v_t374_1);
+    const derive_vd v_t374_3 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t220, t244, t268, t292}), v_t374_2);
+    const derive_vd v_t374_4 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){t227, t251, t275, t299}), v_t374_3);
+    const derive_vd v_t374_5 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){t228, t252, t276, t300}), v_t374_4);
+    const derive_vd v_t374 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){t229, t253, t277, t301}), v_t374_5);
     #else
-    const double t384 = DERIVE_FMA(t133, t239, DERIVE_FMA(t37, t238, DERIVE_FMA(t43, t237, DERIVE_FMA(t33, t230, DERIVE_FMA(t42, t229, t41*t227 + t228)))));
-    const double t385 = DERIVE_FMA(t133, t263, DERIVE_FMA(t37, t262, DERIVE_FMA(t43, t261, DERIVE_FMA(t33, t254, DERIVE_FMA(t42, t253, t41*t251 + t252)))));
-    const double t386 = DERIVE_FMA(t133, t287, DERIVE_FMA(t37, t286, DERIVE_FMA(t43, t285, DERIVE_FMA(t33, t278, DERIVE_FMA(t42, t277, t41*t275 + t276)))));
-    const double t387 = DERIVE_FMA(t133, t311, DERIVE_FMA(t37, t310, DERIVE_FMA(t43, t309, DERIVE_FMA(t33, t302, DERIVE_FMA(t42, t301, t41*t299 + t300)))));
+    const double t374 = DERIVE_FMA(t123, t229, DERIVE_FMA(t46, t228, DERIVE_FMA(t52, t227, DERIVE_FMA(t42, t220, DERIVE_FMA(t51, t219, t50*t217 + t218)))));
+    const double t375 = DERIVE_FMA(t123, t253, DERIVE_FMA(t46, t252, DERIVE_FMA(t52, t251, DERIVE_FMA(t42, t244, DERIVE_FMA(t51, t243, t50*t241 + t242)))));
+    const double t376 = DERIVE_FMA(t123, t277, DERIVE_FMA(t46, t276, DERIVE_FMA(t52, t275, DERIVE_FMA(t42, t268, DERIVE_FMA(t51, t267, t50*t265 + t266)))));
+    const double t377 = DERIVE_FMA(t123, t301, DERIVE_FMA(t46, t300, DERIVE_FMA(t52, t299, DERIVE_FMA(t42, t292, DERIVE_FMA(t51, t291, t50*t289 + t290)))));
+    P_new[28] = t374;
+    P_new[97] = t374;
+    P_new[29] = t375;
+    P_new[121] = t375;
+    P_new[30] = t376;
+    P_new[145] = t376;
+    P_new[31] = t377;
+    P_new[169] = t377;
     #endif
-    const double t388 = DERIVE_FMA(t334, t37, DERIVE_FMA(t333, t43, DERIVE_FMA(t326, t33, DERIVE_FMA(t325, t42, DERIVE_FMA(t323, t41, DERIVE_FMA(t133, t335, t324))))));
-    const double t389 = DERIVE_FMA(t358, t37, DERIVE_FMA(t357, t43, DERIVE_FMA(t349, t42, DERIVE_FMA(t347, t41, DERIVE_FMA(t33, t350, DERIVE_FMA(t133, t359, t348))))));
-    const double t390 = DERIVE_FMA(t195, t35, DERIVE_FMA(t194, t43, DERIVE_FMA(t190, t41, DERIVE_FMA(t188, t34, DERIVE_FMA(t187, t44, DERIVE_FMA(t134, t193, t121 + t189))))));
-    const double t391 = DERIVE_FMA(t215, t35, DERIVE_FMA(t214, t43, DERIVE_FMA(t210, t41, DERIVE_FMA(t208, t34, DERIVE_FMA(t207, t44, DERIVE_FMA(t134, t213, t122 + t209))))));
+    const double t378 = DERIVE_FMA(t324, t46, DERIVE_FMA(t323, t52, DERIVE_FMA(t316, t42, DERIVE_FMA(t315, t51, DERIVE_FMA(t313, t50, DERIVE_FMA(t123, t325, t314))))));
+    const double t379 = DERIVE_FMA(t348, t46, DERIVE_FMA(t347, t52, DERIVE_FMA(t340, t42, DERIVE_FMA(t339, t51, DERIVE_FMA(t337, t50, DERIVE_FMA(t123, t349, t338))))));
+    const double t380 = DERIVE_FMA(1e-06, t100*(1.0 - t25), DERIVE_FMA(t185, t44, DERIVE_FMA(t184, t52, DERIVE_FMA(t180, t50, DERIVE_FMA(t178, t43, DERIVE_FMA(t177, t53, DERIVE_FMA(t124, t183, t179)))))));
+    const double t381 = DERIVE_FMA(t205, t44, DERIVE_FMA(t204, t52, DERIVE_FMA(t200, t50, DERIVE_FMA(t198, t43, DERIVE_FMA(t197, t53, DERIVE_FMA(t124, t203, t114 + t199))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t392_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t392_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t228, t252, t276, t300}), v_t392_0);
-    const derive_vd v_t392_2 = (v_t392_1 + ((derive_vd){t229, t253, t277, t301}));
-    const derive_vd v_t392_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t230, t254, t278, t302}), v_t392_2);
-    const derive_vd v_t392_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t237, t261, t285, t309}), v_t392_3);
-    const derive_vd v_t392_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t238, t262, t286, t310}), v_t392_4);
-    const derive_vd v_t392 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t239, t263, t287, t311}), v_t392_5);
+    const derive_vd v_t382_0 = (((derive_vd){t53, t53, t53, t53}) * ((derive_vd){t217, t241, t265, t289}));
+    const derive_vd v_t382_1 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t218, t242, t266, t290}), v_t382_0);
+    const derive_vd v_t382_2 = (v_t382_1 + ((derive_vd){t219, t243, t267, t291}));
+    const derive_vd v_t382_3 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), ((derive_vd){t220, t244, t268, t292}), v_t382_2);
+    const derive_vd v_t382_4 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){t227, t251, t275, t299}), v_t382_3);
+    const derive_vd v_t382_5 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){t228, t252, t276, t300}), v_t382_4);
+    const derive_vd v_t382 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t229, t253, t277, t301}), v_t382_5);
     #else
-    const double t392 = DERIVE_FMA(t35, t239, DERIVE_FMA(t43, t238, DERIVE_FMA(t134, t237, DERIVE_FMA(t41, t230, DERIVE_FMA(t34, t228, t44*t227) + t229))));
-    const double t393 = DERIVE_FMA(t35, t263, DERIVE_FMA(t43, t262, DERIVE_FMA(t134, t261, DERIVE_FMA(t41, t254, DERIVE_FMA(t34, t252, t44*t251) + t253))));
-    const double t394 = DERIVE_FMA(t35, t287, DERIVE_FMA(t43, t286, DERIVE_FMA(t134, t285, DERIVE_FMA(t41, t278, DERIVE_FMA(t34, t276, t44*t275) + t277))));
-    const double t395 = DERIVE_FMA(t35, t311, DERIVE_FMA(t43, t310, DERIVE_FMA(t134, t309, DERIVE_FMA(t41, t302, DERIVE_FMA(t34, t300, t44*t299) + t301))));
+    const double t382 = DERIVE_FMA(t44, t229, DERIVE_FMA(t52, t228, DERIVE_FMA(t124, t227, DERIVE_FMA(t50, t220, DERIVE_FMA(t43, t218, t53*t217) + t219))));
+    const double t383 = DERIVE_FMA(t44, t253, DERIVE_FMA(t52, t252, DERIVE_FMA(t124, t251, DERIVE_FMA(t50, t244, DERIVE_FMA(t43, t242, t53*t241) + t243))));
+    const double t384 = DERIVE_FMA(t44, t277, DERIVE_FMA(t52, t276, DERIVE_FMA(t124, t275, DERIVE_FMA(t50, t268, DERIVE_FMA(t43, t266, t53*t265) + t267))));
+    const double t385 = DERIVE_FMA(t44, t301, DERIVE_FMA(t52, t300, DERIVE_FMA(t124, t299, DERIVE_FMA(t50, t292, DERIVE_FMA(t43, t290, t53*t289) + t291))));
+    P_new[52] = t382;
+    P_new[98] = t382;
+    P_new[53] = t383;
+    P_new[122] = t383;
+    P_new[54] = t384;
+    P_new[146] = t384;
+    P_new[55] = t385;
+    P_new[170] = t385;
     #endif
-    const double t396 = DERIVE_FMA(t335, t35, DERIVE_FMA(t334, t43, DERIVE_FMA(t326, t41, DERIVE_FMA(t324, t34, DERIVE_FMA(t323, t44, DERIVE_FMA(t134, t333, t325))))));
-    const double t397 = DERIVE_FMA(t358, t43, DERIVE_FMA(t350, t41, DERIVE_FMA(t35, t359, DERIVE_FMA(t347, t44, DERIVE_FMA(t34, t348, DERIVE_FMA(t134, t357, t349))))));
-    const double t398 = DERIVE_FMA(t215, t43, DERIVE_FMA(t213, t36, DERIVE_FMA(t209, t32, DERIVE_FMA(t208, t44, DERIVE_FMA(t207, t42, DERIVE_FMA(t135, t214, t123 + t210))))));
+    const double t386 = DERIVE_FMA(t325, t44, DERIVE_FMA(t324, t52, DERIVE_FMA(t316, t50, DERIVE_FMA(t314, t43, DERIVE_FMA(t313, t53, DERIVE_FMA(t124, t323, t315))))));
+    const double t387 = DERIVE_FMA(t349, t44, DERIVE_FMA(t348, t52, DERIVE_FMA(t340, t50, DERIVE_FMA(t338, t43, DERIVE_FMA(t337, t53, DERIVE_FMA(t124, t347, t339))))));
+    const double t388 = DERIVE_FMA(1e-06, t100*(1.0 - t27), DERIVE_FMA(t205, t52, DERIVE_FMA(t203, t45, DERIVE_FMA(t199, t41, DERIVE_FMA(t198, t53, DERIVE_FMA(t197, t51, DERIVE_FMA(t125, t204, t200)))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t399_0 = (((derive_vd){t42, t42, t42, t42}) * ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t399_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t228, t252, t276, t300}), v_t399_0);
-    const derive_vd v_t399_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t229, t253, t277, t301}), v_t399_1);
-    const derive_vd v_t399_3 = (v_t399_2 + ((derive_vd){t230, t254, t278, t302}));
-    const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t237, t261, t285, t309}), v_t399_3);
-    const derive_vd v_t399_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t238, t262, t286, t310}), v_t399_4);
-    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t239, t263, t287, t311}), v_t399_5);
-    const derive_vd tr_v_t375_0 = __builtin_shufflevector(v_t375, v_t384, 0, 4, 2, 6);
-    const derive_vd tr_v_t375_1 = __builtin_shufflevector(v_t375, v_t384, 1, 5, 3, 7);
-    const derive_vd tr_v_t375_2 = __builtin_shufflevector(v_t392, v_t399, 0, 4, 2, 6);
-    const derive_vd tr_v_t375_3 = __builtin_shufflevector(v_t392, v_t399, 1, 5, 3, 7);
-    const derive_vd tr_v_t375_c0 = __builtin_shufflevector(tr_v_t375_0, tr_v_t375_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t375_c1 = __builtin_shufflevector(tr_v_t375_1, tr_v_t375_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t375_c2 = __builtin_shufflevector(tr_v_t375_0, tr_v_t375_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t375_c3 = __builtin_shufflevector(tr_v_t375_1, tr_v_t375_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[4] = v_t375;
-    *(derive_vd_unaligned *)&P_new[28] = v_t384;
-    *(derive_vd_unaligned *)&P_new[52] = v_t392;
-    *(derive_vd_unaligned *)&P_new[76] = v_t399;
-    *(derive_vd_unaligned *)&P_new[96] = tr_v_t375_c0;
-    *(derive_vd_unaligned *)&P_new[120] = tr_v_t375_c1;
-    *(derive_vd_unaligned *)&P_new[144] = tr_v_t375_c2;
-    *(derive_vd_unaligned *)&P_new[168] = tr_v_t375_c3;
+    const derive_vd v_t389_0 = (((derive_vd){t51, t51, t51, t51}) * ((derive_vd){t217, t241, t265, t289}));
+    const derive_vd v_t389_1 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), ((derive_vd){t218, t242, t266, t290}), v_t389_0);
+    const derive_vd v_t389_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t219, t243, t267, t291}), v_t389_1);
+    const derive_vd v_t389_3 = (v_t389_2 + ((derive_vd){t220, t244, t268, t292}));
+    const derive_vd v_t389_4 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), ((derive_vd){t227, t251, t275, t299}), v_t389_3);
+    const derive_vd v_t389_5 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){t228, t252, t276, t300}), v_t389_4);
+    const derive_vd v_t389 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), ((derive_vd){t229, t253, t277, t301}), v_t389_5);
+    const derive_vd tr_v_t365_0 = __builtin_shufflevector(v_t365, v_t374, 0, 4, 2, 6);
+    const derive_vd tr_v_t365_1 = __builtin_shufflevector(v_t365, v_t374, 1, 5, 3, 7);
+    const derive_vd tr_v_t365_2 = __builtin_shufflevector(v_t382, v_t389, 0, 4, 2, 6);
+    const derive_vd tr_v_t365_3 = __builtin_shufflevector(v_t382, v_t389, 1, 5, 3, 7);
+    const derive_vd tr_v_t365_c0 = __builtin_shufflevector(tr_v_t365_0, tr_v_t365_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t365_c1 = __builtin_shufflevector(tr_v_t365_1, tr_v_t365_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t365_c2 = __builtin_shufflevector(tr_v_t365_0, tr_v_t365_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t365_c3 = __builtin_shufflevector(tr_v_t365_1, tr_v_t365_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t365;
+    *(derive_vd_unaligned *)&P_new[28] = v_t374;
+    *(derive_vd_unaligned *)&P_new[52] = v_t382;
+    *(derive_vd_unaligned *)&P_new[76] = v_t389;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t365_c0;
+    *(derive_vd_unaligned *)&P_new[120] = tr_v_t365_c1;
+    *(derive_vd_unaligned *)&P_new[144] = tr_v_t365_c2;
+    *(derive_vd_unaligned *)&P_new[168] = tr_v_t365_c3;
     #else
-    const double t399 = DERIVE_FMA(t43, t239, DERIVE_FMA(t135, t238, DERIVE_FMA(t36, t237, DERIVE_FMA(t32, t229, DERIVE_FMA(t44, t228, t42*t227)) + t230)));
-    const double t400 = DERIVE_FMA(t43, t263, DERIVE_FMA(t135, t262, DERIVE_FMA(t36, t261, DERIVE_FMA(t32, t253, DERIVE_FMA(t44, t252, t42*t251)) + t254)));
-    const double t401 = DERIVE_FMA(t43, t287, DERIVE_FMA(t135, t286, DERIVE_FMA(t36, t285, DERIVE_FMA(t32, t277, DERIVE_FMA(t44, t276, t42*t275)) + t278)));
-    const double t402 = DERIVE_FMA(t43, t311, DERIVE_FMA(t135, t310, DERIVE_FMA(t36, t309, DERIVE_FMA(t32, t301, DERIVE_FMA(t44, t300, t42*t299)) + t302)));
+    const double t389 = DERIVE_FMA(t52, t229, DERIVE_FMA(t125, t228, DERIVE_FMA(t45, t227, DERIVE_FMA(t41, t219, DERIVE_FMA(t53, t218, t51*t217)) + t220)));
+    const double t390 = DERIVE_FMA(t52, t253, DERIVE_FMA(t125, t252, DERIVE_FMA(t45, t251, DERIVE_FMA(t41, t243, DERIVE_FMA(t53, t242, t51*t241)) + t244)));
+    const double t391 = DERIVE_FMA(t52, t277, DERIVE_FMA(t125, t276, DERIVE_FMA(t45, t275, DERIVE_FMA(t41, t267, DERIVE_FMA(t53, t266, t51*t265)) + t268)));
+    const double t392 = DERIVE_FMA(t52, t301, DERIVE_FMA(t125, t300, DERIVE_FMA(t45, t299, DERIVE_FMA(t41, t291, DERIVE_FMA(t53, t290, t51*t289)) + t292)));
+    P_new[76] = t389;
+    P_new[99] = t389;
+    P_new[77] = t390;
+    P_new[123] = t390;
+    P_new[78] = t391;
+    P_new[147] = t391;
+    P_new[79] = t392;
+    P_new[171] = t392;
     #endif
-    const double t403 = DERIVE_FMA(t335, t43, DERIVE_FMA(t333, t36, DERIVE_FMA(t324, t44, DERIVE_FMA(t323, t42, DERIVE_FMA(t32, t325, DERIVE_FMA(t135, t334, t326))))));
-    const double t404 = DERIVE_FMA(t359, t43, DERIVE_FMA(t357, t36, DERIVE_FMA(t348, t44, DERIVE_FMA(t347, t42, DERIVE_FMA(t32, t349, DERIVE_FMA(t135, t358, t350))))));
+    const double t393 = DERIVE_FMA(t325, t52, DERIVE_FMA(t323, t45, DERIVE_FMA(t315, t41, DERIVE_FMA(t314, t53, DERIVE_FMA(t313, t51, DERIVE_FMA(t125, t324, t316))))));
+    const double t394 = DERIVE_FMA(t349, t52, DERIVE_FMA(t347, t45, DERIVE_FMA(t339, t41, DERIVE_FMA(t338, t53, DERIVE_FMA(t337, t51, DERIVE_FMA(t125, t348, t340))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t405_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t124, t125, t126, 0.0}));
-    const derive_vd v_t405_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t228, t252, t276, t300}), v_t405_0);
-    const derive_vd v_t405_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t229, t253, t277, t301}), v_t405_1);
-    const derive_vd v_t405_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t230, t254, t278, t302}), v_t405_2);
-    const derive_vd v_t405_4 = (v_t405_3 + ((derive_vd){t231, t255, t279, t303}));
-    const derive_vd v_t405_5 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t240, t264, t288, t312}), v_t405_4);
-    const derive_vd v_t405_6 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t241, t265, t289, t313}), v_t405_5);
-    const derive_vd v_t405 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t242, t266, t290, t314}), v_t405_6);
-    const double t406 = v_t405[1];
-    const double t407 = v_t405[2];
-    const double t408 = v_t405[3];
-    *(derive_vd_unaligned *)&P_new[100] = v_t405;
+    const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t217, t241, t265, t289}), ((derive_vd){t119, 0.0, 0.0, 0.0}));
+    const derive_vd v_t395_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t218, t242, t266, t290}), v_t395_0);
+    const derive_vd v_t395_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t219, t243, t267, t291}), v_t395_1);
+    const derive_vd v_t395_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t220, t244, t268, t292}), v_t395_2);
+    const derive_vd v_t395_4 = (v_t395_3 + ((derive_vd){t221, t245, t269, t293}));
+    const derive_vd v_t395_5 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){t230, t254, t278, t302}), v_t395_4);
+    const derive_vd v_t395_6 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){t231, t255, t279, t303}), v_t395_5);
+    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){t232, t256, t280, t304}), v_t395_6);
+    const double t396 = v_t395[1];
+    const double t397 = v_t395[2];
+    const double t398 = v_t395[3];
+    *(derive_vd_unaligned *)&P_new[100] = v_t395;
     #else
-    const double t405 = DERIVE_FMA(t138, t242, DERIVE_FMA(t137, t241, DERIVE_FMA(t136, t240, DERIVE_FMA(t73, t230, DERIVE_FMA(t72, t229, DERIVE_FMA(t71, t228, DERIVE_FMA(t70, t227, t124)))) + t231)));
-    const double t406 = DERIVE_FMA(t138, t266, DERIVE_FMA(t137, t265, DERIVE_FMA(t136, t264, DERIVE_FMA(t73, t254, DERIVE_FMA(t72, t253, DERIVE_FMA(t71, t252, DERIVE_FMA(t70, t251, t125)))) + t255)));
-    const double t407 = DERIVE_FMA(t138, t290, DERIVE_FMA(t137, t289, DERIVE_FMA(t136, t288, DERIVE_FMA(t73, t278, DERIVE_FMA(t72, t277, DERIVE_FMA(t71, t276, DERIVE_FMA(t70, t275, t126)))) + t279)));
-    const double t408 = DERIVE_FMA(t138, t314, DERIVE_FMA(t137, t313, DERIVE_FMA(t136, t312, DERIVE_FMA(t73, t302, DERIVE_FMA(t72, t301, DERIVE_FMA(t71, t300, DERIVE_FMA(t70, t299, 0.0)))) + t303)));
+    const double t395 = DERIVE_FMA(t128, t232, DERIVE_FMA(t127, t231, DERIVE_FMA(t126, t230, DERIVE_FMA(t82, t220, DERIVE_FMA(t81, t219, DERIVE_FMA(t80, t218, DERIVE_FMA(t79, t217, t119)))) + t221)));
+    const double t396 = DERIVE_FMA(t128, t256, DERIVE_FMA(t127, t255, DERIVE_FMA(t126, t254, DERIVE_FMA(t82, t244, DERIVE_FMA(t81, t243, DERIVE_FMA(t80, t242, DERIVE_FMA(t79, t241, 0.0)))) + t245)));
+    const double t397 = DERIVE_FMA(t128, t280, DERIVE_FMA(t127, t279, DERIVE_FMA(t126, t278, DERIVE_FMA(t82, t268, DERIVE_FMA(t81, t267, DERIVE_FMA(t80, t266, DERIVE_FMA(t79, t265, 0.0)))) + t269)));
+    const double t398 = DERIVE_FMA(t128, t304, DERIVE_FMA(t127, t303, DERIVE_FMA(t126, t302, DERIVE_FMA(t82, t292, DERIVE_FMA(t81, t291, DERIVE_FMA(t80, t290, DERIVE_FMA(t79, t289, 0.0)))) + t293)));
+    P_new[100] = t395;
+    P_new[101] = t396;
+    P_new[124] = t396;
+    P_new[102] = t397;
+    P_new[148] = t397;
+    P_new[103] = t398;
+    P_new[172] = t398;
     #endif
-    const double t409 = DERIVE_FMA(t326, t73, DERIVE_FMA(t325, t72, DERIVE_FMA(t324, t71, DERIVE_FMA(t323, t70, DERIVE_FMA(t138, t338, DERIVE_FMA(t137, t337, DERIVE_FMA(t136, t336, t327)))))));
-    const double t410 = DERIVE_FMA(t350, t73, DERIVE_FMA(t349, t72, DERIVE_FMA(t348, t71, DERIVE_FMA(t347, t70, DERIVE_FMA(t138, t362, DERIVE_FMA(t137, t361, DERIVE_FMA(t136, t360, t351)))))));
-    const double t411 = DERIVE_FMA(t254, t80, DERIVE_FMA(t253, t79, DERIVE_FMA(t251, t77, DERIVE_FMA(t142, t266, DERIVE_FMA(t141, t265, DERIVE_FMA(t140, t264, DERIVE_FMA(t139, t252, t127 + t256)))))));
-    const double t412 = DERIVE_FMA(t278, t80, DERIVE_FMA(t277, t79, DERIVE_FMA(t275, t77, DERIVE_FMA(t142, t290, DERIVE_FMA(t141, t289, DERIVE_FMA(t140, t288, DERIVE_FMA(t139, t276, t128 + t280)))))));
-    const double t413 = DERIVE_FMA(t302, t80, DERIVE_FMA(t301, t79, DERIVE_FMA(t299, t77, DERIVE_FMA(t142, t314, DERIVE_FMA(t141, t313, DERIVE_FMA(t140, t312, DERIVE_FMA(t139, t300, t304)))))));
-    const double t414 = DERIVE_FMA(t326, t80, DERIVE_FMA(t325, t79, DERIVE_FMA(t323, t77, DERIVE_FMA(t142, t338, DERIVE_FMA(t141, t337, DERIVE_FMA(t140, t336, DERIVE_FMA(t139, t324, t328)))))));
-    const double t415 = DERIVE_FMA(t350, t80, DERIVE_FMA(t349, t79, DERIVE_FMA(t347, t77, DERIVE_FMA(t142, t362, DERIVE_FMA(t141, t361, DERIVE_FMA(t140, t360, DERIVE_FMA(t139, t348, t352)))))));
-    const double t416 = DERIVE_FMA(t278, t87, DERIVE_FMA(t276, t85, DERIVE_FMA(t275, t84, DERIVE_FMA(t146, t290, DERIVE_FMA(t145, t289, DERIVE_FMA(t144, t288, DERIVE_FMA(t143, t277, t129 + t281)))))));
-    const double t417 = DERIVE_FMA(t302, t87, DERIVE_FMA(t300, t85, DERIVE_FMA(t299, t84, DERIVE_FMA(t146, t314, DERIVE_FMA(t145, t313, DERIVE_FMA(t144, t312, DERIVE_FMA(t143, t301, t305)))))));
-    const double t418 = DERIVE_FMA(t326, t87, DERIVE_FMA(t324, t85, DERIVE_FMA(t323, t84, DERIVE_FMA(t146, t338, DERIVE_FMA(t145, t337, DERIVE_FMA(t144, t336, DERIVE_FMA(t143, t325, t329)))))));
-    const double t419 = DERIVE_FMA(t350, t87, DERIVE_FMA(t348, t85, DERIVE_FMA(t347, t84, DERIVE_FMA(t146, t362, DERIVE_FMA(t145, t361, DERIVE_FMA(t144, t360, DERIVE_FMA(t143, t349, t353)))))));
-    const double t420 = DERIVE_FMA(p[0], t303, t306);
-    const double t421 = DERIVE_FMA(p[0], t327, t330);
-    const double t422 = DERIVE_FMA(p[0], t351, t354);
-    const double t423 = DERIVE_FMA(p[0], t328, t331);
-    const double t424 = DERIVE_FMA(p[0], t352, t355);
-    const double t425 = DERIVE_FMA(p[0], t353, t356);
-    const double t426 = P[250] + t130;
-    const double t427 = P[275] + t130;
-    const double t428 = P[300] + t130;
-    const double t429 = P[325] + t131;
-    const double t430 = P[350] + t131;
-    const double t431 = P[375] + t131;
-    const double t432 = P[400] + t131;
-    const double t433 = P[425] + t131;
-    const double t434 = P[450] + t131;
-    const double t435 = P[475] + t131;
-    const double t436 = P[500] + t131;
-    const double t437 = P[525] + t131;
-    const double t438 = P[550] + t132;
-    const double t439 = P[575] + t132;
+    const double t399 = DERIVE_FMA(t316, t82, DERIVE_FMA(t315, t81, DERIVE_FMA(t314, t80, DERIVE_FMA(t313, t79, DERIVE_FMA(t128, t328, DERIVE_FMA(t127, t327, DERIVE_FMA(t126, t326, t317)))))));
+    const double t400 = DERIVE_FMA(t340, t82, DERIVE_FMA(t339, t81, DERIVE_FMA(t338, t80, DERIVE_FMA(t337, t79, DERIVE_FMA(t128, t352, DERIVE_FMA(t127, t351, DERIVE_FMA(t126, t350, t341)))))));
+    const double t401 = DERIVE_FMA(t244, t89, DERIVE_FMA(t243, t88, DERIVE_FMA(t241, t86, DERIVE_FMA(t132, t256, DERIVE_FMA(t131, t255, DERIVE_FMA(t130, t254, DERIVE_FMA(t129, t242, t119 + t246)))))));
+    const double t402 = DERIVE_FMA(t268, t89, DERIVE_FMA(t267, t88, DERIVE_FMA(t265, t86, DERIVE_FMA(t132, t280, DERIVE_FMA(t131, t279, DERIVE_FMA(t130, t278, DERIVE_FMA(t129, t266, t270)))))));
+    const double t403 = DERIVE_FMA(t292, t89, DERIVE_FMA(t291, t88, DERIVE_FMA(t289, t86, DERIVE_FMA(t132, t304, DERIVE_FMA(t131, t303, DERIVE_FMA(t130, t302, DERIVE_FMA(t129, t290, t294)))))));
+    const double t404 = DERIVE_FMA(t316, t89, DERIVE_FMA(t315, t88, DERIVE_FMA(t313, t86, DERIVE_FMA(t132, t328, DERIVE_FMA(t131, t327, DERIVE_FMA(t130, t326, DERIVE_FMA(t129, t314, t318)))))));
+    const double t405 = DERIVE_FMA(t340, t89, DERIVE_FMA(t339, t88, DERIVE_FMA(t337, t86, DERIVE_FMA(t132, t352, DERIVE_FMA(t131, t351, DERIVE_FMA(t130, t350, DERIVE_FMA(t129, t338, t342)))))));
+    const double t406 = DERIVE_FMA(t268, t96, DERIVE_FMA(t266, t94, DERIVE_FMA(t265, t93, DERIVE_FMA(t136, t280, DERIVE_FMA(t135, t279, DERIVE_FMA(t134, t278, DERIVE_FMA(t133, t267, t119 + t271)))))));
+    const double t407 = DERIVE_FMA(t292, t96, DERIVE_FMA(t290, t94, DERIVE_FMA(t289, t93, DERIVE_FMA(t136, t304, DERIVE_FMA(t135, t303, DERIVE_FMA(t134, t302, DERIVE_FMA(t133, t291, t295)))))));
+    const double t408 = DERIVE_FMA(t316, t96, DERIVE_FMA(t314, t94, DERIVE_FMA(t313, t93, DERIVE_FMA(t136, t328, DERIVE_FMA(t135, t327, DERIVE_FMA(t134, t326, DERIVE_FMA(t133, t315, t319)))))));
+    const double t409 = DERIVE_FMA(t340, t96, DERIVE_FMA(t338, t94, DERIVE_FMA(t337, t93, DERIVE_FMA(t136, t352, DERIVE_FMA(t135, t351, DERIVE_FMA(t134, t350, DERIVE_FMA(t133, t339, t343)))))));
+    const double t410 = DERIVE_FMA(p[0], t293, t296);
+    const double t411 = DERIVE_FMA(p[0], t317, t320);
+    const double t412 = DERIVE_FMA(p[0], t341, t344);
+    const double t413 = DERIVE_FMA(p[0], t318, t321);
+    const double t414 = DERIVE_FMA(p[0], t342, t345);
+    const double t415 = DERIVE_FMA(p[0], t343, t346);
+    const double t416 = P[250] + t120;
+    const double t417 = P[275] + t120;
+    const double t418 = P[300] + t120;
+    const double t419 = P[325] + t121;
+    const double t420 = P[350] + t121;
+    const double t421 = P[375] + t121;
+    const double t422 = P[400] + t121;
+    const double t423 = P[425] + t121;
+    const double t424 = P[450] + t121;
+    const double t425 = P[475] + t121;
+    const double t426 = P[500] + t121;
+    const double t427 = P[525] + t121;
+    const double t428 = P[550] + t122;
+    const double t429 = P[575] + t122;
     #if DERIVE_VECTOR
-    x_new[0] = t60;
-    x_new[1] = t61;
-    x_new[2] = t62;
-    x_new[3] = t63;
-    x_new[4] = t64;
-    x_new[5] = t65;
-    x_new[6] = t66;
-    x_new[7] = t67;
-    x_new[8] = t68;
-    x_new[9] = t69;
+    x_new[0] = t69;
+    x_new[1] = t70;
+    x_new[2] = t71;
+    x_new[3] = t72;
+    x_new[4] = t73;
+    x_new[5] = t74;
+    x_new[6] = t75;
+    x_new[7] = t76;
+    x_new[8] = t77;
+    x_new[9] = t78;
     x_new[10] = x[10];
     x_new[11] = x[11];
     x_new[12] = x[12];
@@ -1297,89 +1611,89 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     x_new[21] = x[21];
     x_new[22] = x[22];
     x_new[23] = x[23];
-    P_new[8] = t379;
-    P_new[9] = t380;
-    P_new[10] = t153;
-    P_new[11] = t154;
-    P_new[24] = t372;
-    P_new[25] = t381;
-    P_new[26] = t382;
-    P_new[27] = t383;
-    P_new[32] = t388;
-    P_new[33] = t389;
-    P_new[34] = t173;
-    P_new[35] = t174;
-    P_new[48] = t373;
-    P_new[49] = t382;
-    P_new[50] = t390;
-    P_new[51] = t391;
-    P_new[56] = t396;
-    P_new[57] = t397;
-    P_new[58] = t193;
-    P_new[59] = t194;
-    P_new[72] = t374;
-    P_new[73] = t383;
-    P_new[74] = t391;
-    P_new[75] = t398;
-    P_new[80] = t403;
-    P_new[81] = t404;
-    P_new[82] = t213;
-    P_new[83] = t214;
-    P_new[104] = t409;
-    P_new[105] = t410;
-    P_new[106] = t237;
-    P_new[107] = t238;
-    P_new[124] = t406;
-    P_new[125] = t411;
-    P_new[126] = t412;
-    P_new[127] = t413;
-    P_new[128] = t414;
-    P_new[129] = t415;
-    P_new[130] = t261;
-    P_new[131] = t262;
-    P_new[148] = t407;
-    P_new[149] = t412;
-    P_new[150] = t416;
-    P_new[151] = t417;
-    P_new[152] = t418;
-    P_new[153] = t419;
-    P_new[154] = t285;
-    P_new[155] = t286;
-    P_new[172] = t408;
-    P_new[173] = t413;
-    P_new[174] = t417;
-    P_new[175] = t420;
-    P_new[176] = t421;
-    P_new[177] = t422;
-    P_new[178] = t309;
-    P_new[179] = t310;
-    P_new[192] = t379;
-    P_new[193] = t388;
-    P_new[194] = t396;
-    P_new[195] = t403;
-    P_new[196] = t409;
-    P_new[197] = t414;
-    P_new[198] = t418;
-    P_new[199] = t421;
-    P_new[200] = t423;
-    P_new[201] = t424;
-    P_new[202] = t333;
-    P_new[203] = t334;
-    P_new[216] = t380;
-    P_new[217] = t389;
-    P_new[218] = t397;
-    P_new[219] = t404;
-    P_new[220] = t410;
-    P_new[221] = t415;
-    P_new[222] = t419;
-    P_new[223] = t422;
-    P_new[224] = t424;
-    P_new[225] = t425;
-    P_new[226] = t357;
-    P_new[227] = t358;
-    P_new[248] = t333;
-    P_new[249] = t357;
-    P_new[250] = t426;
+    P_new[8] = t369;
+    P_new[9] = t370;
+    P_new[10] = t143;
+    P_new[11] = t144;
+    P_new[24] = t362;
+    P_new[25] = t371;
+    P_new[26] = t372;
+    P_new[27] = t373;
+    P_new[32] = t378;
+    P_new[33] = t379;
+    P_new[34] = t163;
+    P_new[35] = t164;
+    P_new[48] = t363;
+    P_new[49] = t372;
+    P_new[50] = t380;
+    P_new[51] = t381;
+    P_new[56] = t386;
+    P_new[57] = t387;
+    P_new[58] = t183;
+    P_new[59] = t184;
+    P_new[72] = t364;
+    P_new[73] = t373;
+    P_new[74] = t381;
+    P_new[75] = t388;
+    P_new[80] = t393;
+    P_new[81] = t394;
+    P_new[82] = t203;
+    P_new[83] = t204;
+    P_new[104] = t399;
+    P_new[105] = t400;
+    P_new[106] = t227;
+    P_new[107] = t228;
+    P_new[124] = t396;
+    P_new[125] = t401;
+    P_new[126] = t402;
+    P_new[127] = t403;
+    P_new[128] = t404;
+    P_new[129] = t405;
+    P_new[130] = t251;
+    P_new[131] = t252;
+    P_new[148] = t397;
+    P_new[149] = t402;
+    P_new[150] = t406;
+    P_new[151] = t407;
+    P_new[152] = t408;
+    P_new[153] = t409;
+    P_new[154] = t275;
+    P_new[155] = t276;
+    P_new[172] = t398;
+    P_new[173] = t403;
+    P_new[174] = t407;
+    P_new[175] = t410;
+    P_new[176] = t411;
+    P_new[177] = t412;
+    P_new[178] = t299;
+    P_new[179] = t300;
+    P_new[192] = t369;
+    P_new[193] = t378;
+    P_new[194] = t386;
+    P_new[195] = t393;
+    P_new[196] = t399;
+    P_new[197] = t404;
+    P_new[198] = t408;
+    P_new[199] = t411;
+    P_new[200] = t413;
+    P_new[201] = t414;
+    P_new[202] = t323;
+    P_new[203] = t324;
+    P_new[216] = t370;
+    P_new[217] = t379;
+    P_new[218] = t387;
+    P_new[219] = t394;
+    P_new[220] = t400;
+    P_new[221] = t405;
+    P_new[222] = t409;
+    P_new[223] = t412;
+    P_new[224] = t414;
+    P_new[225] = t415;
+    P_new[226] = t347;
+    P_new[227] = t348;
+    P_new[248] = t323;
+    P_new[249] = t347;
+    P_new[250] = t416;
     P_new[251] = P[251];
     P_new[252] = P[252];
     P_new[253] = P[253];
@@ -1393,10 +1707,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[261] = P[261];
     P_new[262] = P[262];
     P_new[263] = P[263];
-    P_new[272] = t334;
-    P_new[273] = t358;
+    P_new[272] = t324;
+    P_new[273] = t348;
     P_new[274] = P[251];
-    P_new[275] = t427;
+    P_new[275] = t417;
     P_new[276] = P[276];
     P_new[277] = P[277];
     P_new[278] = P[278];
@@ -1409,11 +1723,11 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[285] = P[285];
     P_new[286] = P[286];
     P_new[287] = P[287];
-    P_new[296] = t335;
-    P_new[297] = t359;
+    P_new[296] = t325;
+    P_new[297] = t349;
     P_new[298] = P[252];
     P_new[299] = P[276];
-    P_new[300] = t428;
+    P_new[300] = t418;
     P_new[301] = P[301];
     P_new[302] = P[302];
     P_new[303] = P[303];
@@ -1425,12 +1739,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[309] = P[309];
     P_new[310] = P[310];
     P_new[311] = P[311];
-    P_new[320] = t336;
-    P_new[321] = t360;
+    P_new[320] = t326;
+    P_new[321] = t350;
     P_new[322] = P[253];
     P_new[323] = P[277];
     P_new[324] = P[301];
-    P_new[325] = t429;
+    P_new[325] = t419;
     P_new[326] = P[326];
     P_new[327] = P[327];
     P_new[328] = P[328];
@@ -1441,13 +1755,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[333] = P[333];
     P_new[334] = P[334];
     P_new[335] = P[335];
-    P_new[344] = t337;
-    P_new[345] = t361;
+    P_new[344] = t327;
+    P_new[345] = t351;
     P_new[346] = P[254];
     P_new[347] = P[278];
     P_new[348] = P[302];
     P_new[349] = P[326];
-    P_new[350] = t430;
+    P_new[350] = t420;
     P_new[351] = P[351];
     P_new[352] = P[352];
     P_new[353] = P[353];
@@ -1457,14 +1771,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[357] = P[357];
     P_new[358] = P[358];
     P_new[359] = P[359];
-    P_new[368] = t338;
-    P_new[369] = t362;
+    P_new[368] = t328;
+    P_new[369] = t352;
     P_new[370] = P[255];
     P_new[371] = P[279];
     P_new[372] = P[303];
     P_new[373] = P[327];
     P_new[374] = P[351];
-    P_new[375] = t431;
+    P_new[375] = t421;
     P_new[376] = P[376];
     P_new[377] = P[377];
     P_new[378] = P[378];
@@ -1473,15 +1787,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[381] = P[381];
     P_new[382] = P[382];
     P_new[383] = P[383];
-    P_new[392] = t339;
-    P_new[393] = t363;
+    P_new[392] = t329;
+    P_new[393] = t353;
     P_new[394] = P[256];
     P_new[395] = P[280];
     P_new[396] = P[304];
     P_new[397] = P[328];
     P_new[398] = P[352];
     P_new[399] = P[376];
-    P_new[400] = t432;
+    P_new[400] = t422;
     P_new[401] = P[401];
     P_new[402] = P[402];
     P_new[403] = P[403];
@@ -1489,8 +1803,8 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[405] = P[405];
     P_new[406] = P[406];
     P_new[407] = P[407];
-    P_new[416] = t340;
-    P_new[417] = t364;
+    P_new[416] = t330;
+    P_new[417] = t354;
     P_new[418] = P[257];
     P_new[419] = P[281];
     P_new[420] = P[305];
@@ -1498,15 +1812,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[422] = P[353];
     P_new[423] = P[377];
     P_new[424] = P[401];
-    P_new[425] = t433;
+    P_new[425] = t423;
     P_new[426] = P[426];
     P_new[427] = P[427];
     P_new[428] = P[428];
     P_new[429] = P[429];
     P_new[430] = P[430];
     P_new[431] = P[431];
-    P_new[440] = t341;
-    P_new[441] = t365;
+    P_new[440] = t331;
+    P_new[441] = t355;
     P_new[442] = P[258];
     P_new[443] = P[282];
     P_new[444] = P[306];
@@ -1515,14 +1829,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[447] = P[378];
     P_new[448] = P[402];
     P_new[449] = P[426];
-    P_new[450] = t434;
+    P_new[450] = t424;
     P_new[451] = P[451];
     P_new[452] = P[452];
     P_new[453] = P[453];
     P_new[454] = P[454];
     P_new[455] = P[455];
-    P_new[464] = t342;
-    P_new[465] = t366;
+    P_new[464] = t332;
+    P_new[465] = t356;
     P_new[466] = P[259];
     P_new[467] = P[283];
     P_new[468] = P[307];
@@ -1532,13 +1846,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[472] = P[403];
     P_new[473] = P[427];
     P_new[474] = P[451];
-    P_new[475] = t435;
+    P_new[475] = t425;
     P_new[476] = P[476];
     P_new[477] = P[477];
     P_new[478] = P[478];
     P_new[479] = P[479];
-    P_new[488] = t343;
-    P_new[489] = t367;
+    P_new[488] = t333;
+    P_new[489] = t357;
     P_new[490] = P[260];
     P_new[491] = P[284];
     P_new[492] = P[308];
@@ -1549,12 +1863,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[497] = P[428];
     P_new[498] = P[452];
     P_new[499] = P[476];
-    P_new[500] = t436;
+    P_new[500] = t426;
     P_new[501] = P[501];
     P_new[502] = P[502];
     P_new[503] = P[503];
-    P_new[512] = t344;
-    P_new[513] = t368;
+    P_new[512] = t334;
+    P_new[513] = t358;
     P_new[514] = P[261];
     P_new[515] = P[285];
     P_new[516] = P[309];
@@ -1566,11 +1880,11 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[522] = P[453];
     P_new[523] = P[477];
     P_new[524] = P[501];
-    P_new[525] = t437;
+    P_new[525] = t427;
     P_new[526] = P[526];
     P_new[527] = P[527];
-    P_new[536] = t345;
-    P_new[537] = t369;
+    P_new[536] = t335;
+    P_new[537] = t359;
     P_new[538] = P[262];
     P_new[539] = P[286];
     P_new[540] = P[310];
@@ -1583,10 +1897,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[547] = P[478];
     P_new[548] = P[502];
     P_new[549] = P[526];
-    P_new[550] = t438;
+    P_new[550] = t428;
     P_new[551] = P[551];
-    P_new[560] = t346;
-    P_new[561] = t370;
+    P_new[560] = t336;
+    P_new[561] = t360;
     P_new[562] = P[263];
     P_new[563] = P[287];
     P_new[564] = P[311];
@@ -1600,18 +1914,18 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[572] = P[503];
     P_new[573] = P[527];
     P_new[574] = P[551];
-    P_new[575] = t439;
+    P_new[575] = t429;
     #else
-    x_new[0] = t60;
-    x_new[1] = t61;
-    x_new[2] = t62;
-    x_new[3] = t63;
-    x_new[4] = t64;
-    x_new[5] = t65;
-    x_new[6] = t66;
-    x_new[7] = t67;
-    x_new[8] = t68;
-    x_new[9] = t69;
+    x_new[0] = t69;
+    x_new[1] = t70;
+    x_new[2] = t71;
+    x_new[3] = t72;
+    x_new[4] = t73;
+    x_new[5] = t74;
+    x_new[6] = t75;
+    x_new[7] = t76;
+    x_new[8] = t77;
+    x_new[9] = t78;
     x_new[10] = x[10];
     x_new[11] = x[11];
     x_new[12] = x[12];
@@ -1626,257 +1940,61 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     x_new[21] = x[21];
     x_new[22] = x[22];
     x_new[23] = x[23];
-    P_new[0] = t371;
-    P_new[1] = t372;
-    P_new[2] = t373;
-    P_new[3] = t374;
-    P_new[4] = t375;
-    P_new[5] = t376;
-    P_new[6] = t377;
-    P_new[7] = t378;
-    P_new[8] = t379;
-    P_new[9] = t380;
-    P_new[10] = t153;
-    P_new[11] = t154;
-    P_new[12] = t155;
-    P_new[13] = t156;
-    P_new[14] = t157;
-    P_new[15] = t158;
-    P_new[16] = t159;
-    P_new[17] = t160;
-    P_new[18] = t161;
-    P_new[19] = t162;
-    P_new[20] = t163;
-    P_new[21] = t164;
-    P_new[22] = t165;
-    P_new[23] = t166;
-    P_new[24] = t372;
-    P_new[25] = t381;
-    P_new[26] = t382;
-    P_new[27] = t383;
-    P_new[28] = t384;
-    P_new[29] = t385;
-    P_new[30] = t386;
-    P_new[31] = t387;
-    P_new[32] = t388;
-    P_new[33] = t389;
-    P_new[34] = t173;
-    P_new[35] = t174;
-    P_new[36] = t175;
-    P_new[37] = t176;
-    P_new[38] = t177;
-    P_new[39] = t178;
-    P_new[40] = t179;
-    P_new[41] = t180;
-    P_new[42] = t181;
-    P_new[43] = t182;
-    P_new[44] = t183;
-    P_new[45] = t184;
-    P_new[46] = t185;
-    P_new[47] = t186;
-    P_new[48] = t373;
-    P_new[49] = t382;
-    P_new[50] = t390;
-    P_new[51] = t391;
-    P_new[52] = t392;
-    P_new[53] = t393;
-    P_new[54] = t394;
-    P_new[55] = t395;
-    P_new[56] = t396;
-    P_new[57] = t397;
-    P_new[58] = t193;
-    P_new[59] = t194;
-    P_new[60] = t195;
-    P_new[61] = t196;
-    P_new[62] = t197;
-    P_new[63] = t198;
-    P_new[64] = t199;
-    P_new[65] = t200;
-    P_new[66] = t201;
-    P_new[67] = t202;
-    P_new[68] = t203;
-    P_new[69] = t204;
-    P_new[70] = t205;
-    P_new[71] = t206;
-    P_new[72] = t374;
-    P_new[73] = t383;
-    P_new[74] = t391;
-    P_new[75] = t398;
-    P_new[76] = t399;
-    P_new[77] = t400;
-    P_new[78] = t401;
-    P_new[79] = t402;
-    P_new[80] = t403;
-    P_new[81] = t404;
-    P_new[82] = t213;
-    P_new[83] = t214;
-    P_new[84] = t215;
-    P_new[85] = t216;
-    P_new[86] = t217;
-    P_new[87] = t218;
-    P_new[88] = t219;
-    P_new[89] = t220;
-    P_new[90] = t221;
-    P_new[91] = t222;
-    P_new[92] = t223;
-    P_new[93] = t224;
-    P_new[94] = t225;
-    P_new[95] = t226;
-    P_new[96] = t375;
-    P_new[97] = t384;
-    P_new[98] = t392;
-    P_new[99] = t399;
-    P_new[100] = t405;
-    P_new[101] = t406;
-    P_new[102] = t407;
-    P_new[103] = t408;
-    P_new[104] = t409;
-    P_new[105] = t410;
-    P_new[106] = t237;
-    P_new[107] = t238;
-    P_new[108] = t239;
-    P_new[109] = t240;
-    P_new[110] = t241;
-    P_new[111] = t242;
-    P_new[112] = t243;
-    P_new[113] = t244;
-    P_new[114] = t245;
-    P_new[115] = t246;
-    P_new[116] = t247;
-    P_new[117] = t248;
-    P_new[118] = t249;
-    P_new[119] = t250;
-    P_new[120] = t376;
-    P_new[121] = t385;
-    P_new[122] = t393;
-    P_new[123] = t400;
-    P_new[124] = t406;
-    P_new[125] = t411;
-    P_new[126] = t412;
-    P_new[127] = t413;
-    P_new[128] = t414;
-    P_new[129] = t415;
-    P_new[130] = t261;
-    P_new[131] = t262;
-    P_new[132] = t263;
-    P_new[133] = t264;
-    P_new[134] = t265;
-    P_new[135] = t266;
-    P_new[136] = t267;
-    P_new[137] = t268;
-    P_new[138] = t269;
-    P_new[139] = t270;
-    P_new[140] = t271;
-    P_new[141] = t272;
-    P_new[142] = t273;
-    P_new[143] = t274;
-    P_new[144] = t377;
-    P_new[145] = t386;
-    P_new[146] = t394;
-    P_new[147] = t401;
-    P_new[148] = t407;
-    P_new[149] = t412;
-    P_new[150] = t416;
-    P_new[151] = t417;
-    P_new[152] = t418;
-    P_new[153] = t419;
-    P_new[154] = t285;
-    P_new[155] = t286;
-    P_new[156] = t287;
-    P_new[157] = t288;
-    P_new[158] = t289;
-    P_new[159] = t290;
-    P_new[160] = t291;
-    P_new[161] = t292;
-    P_new[162] = t293;
-    P_new[163] = t294;
-    P_new[164] = t295;
-    P_new[165] = t296;
-    P_new[166] = t297;
-    P_new[167] = t298;
-    P_new[168] = t378;
-    P_new[169] = t387;
-    P_new[170] = t395;
-    P_new[171] = t402;
-    P_new[172] = t408;
-    P_new[173] = t413;
-    P_new[174] = t417;
-    P_new[175] = t420;
-    P_new[176] = t421;
-    P_new[177] = t422;
-    P_new[178] = t309;
-    P_new[179] = t310;
-    P_new[180] = t311;
-    P_new[181] = t312;
-    P_new[182] = t313;
-    P_new[183] = t314;
-    P_new[184] = t315;
-    P_new[185] = t316;
-    P_new[186] = t317;
-    P_new[187] = t318;
-    P_new[188] = t319;
-    P_new[189] = t320;
-    P_new[190] = t321;
-    P_new[191] = t322;
-    P_new[192] = t379;
-    P_new[193] = t388;
-    P_new[194] = t396;
-    P_new[195] = t403;
-    P_new[196] = t409;
-    P_new[197] = t414;
-    P_new[198] = t418;
-    P_new[199] = t421;
-    P_new[200] = t423;
-    P_new[201] = t424;
-    P_new[202] = t333;
-    P_new[203] = t334;
-    P_new[204] = t335;
-    P_new[205] = t336;
-    P_new[206] = t337;
-    P_new[207] = t338;
-    P_new[208] = t339;
-    P_new[209] = t340;
-    P_new[210] = t341;
-    P_new[211] = t342;
-    P_new[212] = t343;
-    P_new[213] = t344;
-    P_new[214] = t345;
-    P_new[215] = t346;
-    P_new[216] = t380;
-    P_new[217] = t389;
-    P_new[218] = t397;
-    P_new[219] = t404;
-    P_new[220] = t410;
-    P_new[221] = t415;
-    P_new[222] = t419;
-    P_new[223] = t422;
-    P_new[224] = t424;
-    P_new[225] = t425;
-    P_new[226] = t357;
-    P_new[227] = t358;
-    P_new[228] = t359;
-    P_new[229] = t360;
-    P_new[230] = t361;
-    P_new[231] = t362;
-    P_new[232] = t363;
-    P_new[233] = t364;
-    P_new[234] = t365;
-    P_new[235] = t366;
-    P_new[236] = t367;
-    P_new[237] = t368;
-    P_new[238] = t369;
-    P_new[239] = t370;
-    P_new[240] = t153;
-    P_new[241] = t173;
-    P_new[242] = t193;
-    P_new[243] = t213;
-    P_new[244] = t237;
-    P_new[245] = t261;
-    P_new[246] = t285;
-    P_new[247] = t309;
-    P_new[248] = t333;
-    P_new[249] = t357;
-    P_new[250] = t426;
+    P_new[8] = t369;
+    P_new[9] = t370;
+    P_new[25] = t371;
+    P_new[26] = t372;
+    P_new[27] = t373;
+    P_new[32] = t378;
+    P_new[33] = t379;
+    P_new[49] = t372;
+    P_new[50] = t380;
+    P_new[51] = t381;
+    P_new[56] = t386;
+    P_new[57] = t387;
+    P_new[73] = t373;
+    P_new[74] = t381;
+    P_new[75] = t388;
+    P_new[80] = t393;
+    P_new[81] = t394;
+    P_new[104] = t399;
+    P_new[105] = t400;
+    P_new[125] = t401;
+    P_new[126] = t402;
+    P_new[127] = t403;
+    P_new[128] = t404;
+    P_new[129] = t405;
+    P_new[149] = t402;
+    P_new[150] = t406;
+    P_new[151] = t407;
+    P_new[152] = t408;
+    P_new[153] = t409;
+    P_new[173] = t403;
+    P_new[174] = t407;
+    P_new[175] = t410;
+    P_new[176] = t411;
+    P_new[177] = t412;
+    P_new[192] = t369;
+    P_new[193] = t378;
+    P_new[194] = t386;
+    P_new[195] = t393;
+    P_new[196] = t399;
+    P_new[197] = t404;
+    P_new[198] = t408;
+    P_new[199] = t411;
+    P_new[200] = t413;
+    P_new[201] = t414;
+    P_new[216] = t370;
+    P_new[217] = t379;
+    P_new[218] = t387;
+    P_new[219] = t394;
+    P_new[220] = t400;
+    P_new[221] = t405;
+    P_new[222] = t409;
+    P_new[223] = t412;
+    P_new[224] = t414;
+    P_new[225] = t415;
+    P_new[250] = t416;
     P_new[251] = P[251];
     P_new[252] = P[252];
     P_new[253] = P[253];
@@ -1890,18 +2008,8 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[261] = P[261];
     P_new[262] = P[262];
     P_new[263] = P[263];
-    P_new[264] = t154;
-    P_new[265] = t174;
-    P_new[266] = t194;
-    P_new[267] = t214;
-    P_new[268] = t238;
-    P_new[269] = t262;
-    P_new[270] = t286;
-    P_new[271] = t310;
-    P_new[272] = t334;
-    P_new[273] = t358;
     P_new[274] = P[251];
-    P_new[275] = t427;
+    P_new[275] = t417;
     P_new[276] = P[276];
     P_new[277] = P[277];
     P_new[278] = P[278];
@@ -1914,19 +2022,9 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[285] = P[285];
     P_new[286] = P[286];
     P_new[287] = P[287];
-    P_new[288] = t155;
-    P_new[289] = t175;
-    P_new[290] = t195;
-    P_new[291] = t215;
-    P_new[292] = t239;
-    P_new[293] = t263;
-    P_new[294] = t287;
-    P_new[295] = t311;
-    P_new[296] = t335;
-    P_new[297] = t359;
     P_new[298] = P[252];
     P_new[299] = P[276];
-    P_new[300] = t428;
+    P_new[300] = t418;
     P_new[301] = P[301];
     P_new[302] = P[302];
     P_new[303] = P[303];
@@ -1938,20 +2036,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[309] = P[309];
     P_new[310] = P[310];
     P_new[311] = P[311];
-    P_new[312] = t156;
-    P_new[313] = t176;
-    P_new[314] = t196;
-    P_new[315] = t216;
-    P_new[316] = t240;
-    P_new[317] = t264;
-    P_new[318] = t288;
-    P_new[319] = t312;
-    P_new[320] = t336;
-    P_new[321] = t360;
     P_new[322] = P[253];
     P_new[323] = P[277];
     P_new[324] = P[301];
-    P_new[325] = t429;
+    P_new[325] = t419;
     P_new[326] = P[326];
     P_new[327] = P[327];
     P_new[328] = P[328];
@@ -1962,21 +2050,11 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[333] = P[333];
     P_new[334] = P[334];
     P_new[335] = P[335];
-    P_new[336] = t157;
-    P_new[337] = t177;
-    P_new[338] = t197;
-    P_new[339] = t217;
-    P_new[340] = t241;
-    P_new[341] = t265;
-    P_new[342] = t289;
-    P_new[343] = t313;
-    P_new[344] = t337;
-    P_new[345] = t361;
     P_new[346] = P[254];
     P_new[347] = P[278];
     P_new[348] = P[302];
     P_new[349] = P[326];
-    P_new[350] = t430;
+    P_new[350] = t420;
     P_new[351] = P[351];
     P_new[352] = P[352];
     P_new[353] = P[353];
@@ -1986,22 +2064,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[357] = P[357];
     P_new[358] = P[358];
     P_new[359] = P[359];
-    P_new[360] = t158;
-    P_new[361] = t178;
-    P_new[362] = t198;
-    P_new[363] = t218;
-    P_new[364] = t242;
-    P_new[365] = t266;
-    P_new[366] = t290;
-    P_new[367] = t314;
-    P_new[368] = t338;
-    P_new[369] = t362;
     P_new[370] = P[255];
     P_new[371] = P[279];
     P_new[372] = P[303];
     P_new[373] = P[327];
     P_new[374] = P[351];
-    P_new[375] = t431;
+    P_new[375] = t421;
     P_new[376] = P[376];
     P_new[377] = P[377];
     P_new[378] = P[378];
@@ -2010,23 +2078,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[381] = P[381];
     P_new[382] = P[382];
     P_new[383] = P[383];
-    P_new[384] = t159;
-    P_new[385] = t179;
-    P_new[386] = t199;
-    P_new[387] = t219;
-    P_new[388] = t243;
-    P_new[389] = t267;
-    P_new[390] = t291;
-    P_new[391] = t315;
-    P_new[392] = t339;
-    P_new[393] = t363;
     P_new[394] = P[256];
     P_new[395] = P[280];
     P_new[396] = P[304];
     P_new[397] = P[328];
     P_new[398] = P[352];
     P_new[399] = P[376];
-    P_new[400] = t432;
+    P_new[400] = t422;
     P_new[401] = P[401];
     P_new[402] = P[402];
     P_new[403] = P[403];
@@ -2034,16 +2092,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[405] = P[405];
     P_new[406] = P[406];
     P_new[407] = P[407];
-    P_new[408] = t160;
-    P_new[409] = t180;
-    P_new[410] = t200;
-    P_new[411] = t220;
-    P_new[412] = t244;
-    P_new[413] = t268;
-    P_new[414] = t292;
-    P_new[415] = t316;
-    P_new[416] = t340;
-    P_new[417] = t364;
     P_new[418] = P[257];
     P_new[419] = P[281];
     P_new[420] = P[305];
@@ -2051,23 +2099,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[422] = P[353];
     P_new[423] = P[377];
     P_new[424] = P[401];
-    P_new[425] = t433;
+    P_new[425] = t423;
     P_new[426] = P[426];
     P_new[427] = P[427];
     P_new[428] = P[428];
     P_new[429] = P[429];
     P_new[430] = P[430];
     P_new[431] = P[431];
-    P_new[432] = t161;
-    P_new[433] = t181;
-    P_new[434] = t201;
-    P_new[435] = t221;
-    P_new[436] = t245;
-    P_new[437] = t269;
-    P_new[438] = t293;
-    P_new[439] = t317;
-    P_new[440] = t341;
-    P_new[441] = t365;
     P_new[442] = P[258];
     P_new[443] = P[282];
     P_new[444] = P[306];
@@ -2076,22 +2114,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[447] = P[378];
     P_new[448] = P[402];
     P_new[449] = P[426];
-    P_new[450] = t434;
+    P_new[450] = t424;
     P_new[451] = P[451];
     P_new[452] = P[452];
     P_new[453] = P[453];
     P_new[454] = P[454];
     P_new[455] = P[455];
-    P_new[456] = t162;
-    P_new[457] = t182;
-    P_new[458] = t202;
-    P_new[459] = t222;
-    P_new[460] = t246;
-    P_new[461] = t270;
-    P_new[462] = t294;
-    P_new[463] = t318;
-    P_new[464] = t342;
-    P_new[465] = t366;
     P_new[466] = P[259];
     P_new[467] = P[283];
     P_new[468] = P[307];
@@ -2101,21 +2129,11 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[472] = P[403];
     P_new[473] = P[427];
     P_new[474] = P[451];
-    P_new[475] = t435;
+    P_new[475] = t425;
     P_new[476] = P[476];
     P_new[477] = P[477];
     P_new[478] = P[478];
     P_new[479] = P[479];
-    P_new[480] = t163;
-    P_new[481] = t183;
-    P_new[482] = t203;
-    P_new[483] = t223;
-    P_new[484] = t247;
-    P_new[485] = t271;
-    P_new[486] = t295;
-    P_new[487] = t319;
-    P_new[488] = t343;
-    P_new[489] = t367;
     P_new[490] = P[260];
     P_new[491] = P[284];
     P_new[492] = P[308];
@@ -2126,20 +2144,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[497] = P[428];
     P_new[498] = P[452];
     P_new[499] = P[476];
-    P_new[500] = t436;
+    P_new[500] = t426;
     P_new[501] = P[501];
     P_new[502] = P[502];
     P_new[503] = P[503];
-    P_new[504] = t164;
-    P_new[505] = t184;
-    P_new[506] = t204;
-    P_new[507] = t224;
-    P_new[508] = t248;
-    P_new[509] = t272;
-    P_new[510] = t296;
-    P_new[511] = t320;
-    P_new[512] = t344;
-    P_new[513] = t368;
     P_new[514] = P[261];
     P_new[515] = P[285];
     P_new[516] = P[309];
@@ -2151,19 +2159,9 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[522] = P[453];
     P_new[523] = P[477];
     P_new[524] = P[501];
-    P_new[525] = t437;
+    P_new[525] = t427;
     P_new[526] = P[526];
     P_new[527] = P[527];
-    P_new[528] = t165;
-    P_new[529] = t185;
-    P_new[530] = t205;
-    P_new[531] = t225;
-    P_new[532] = t249;
-    P_new[533] = t273;
-    P_new[534] = t297;
-    P_new[535] = t321;
-    P_new[536] = t345;
-    P_new[537] = t369;
     P_new[538] = P[262];
     P_new[539] = P[286];
     P_new[540] = P[310];
@@ -2176,18 +2174,8 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[547] = P[478];
     P_new[548] = P[502];
     P_new[549] = P[526];
-    P_new[550] = t438;
+    P_new[550] = t428;
     P_new[551] = P[551];
-    P_new[552] = t166;
-    P_new[553] = t186;
-    P_new[554] = t206;
-    P_new[555] = t226;
-    P_new[556] = t250;
-    P_new[557] = t274;
-    P_new[558] = t298;
-    P_new[559] = t322;
-    P_new[560] = t346;
-    P_new[561] = t370;
     P_new[562] = P[263];
     P_new[563] = P[287];
     P_new[564] = P[311];
@@ -2201,7 +2189,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[572] = P[503];
     P_new[573] = P[527];
     P_new[574] = P[551];
-    P_new[575] = t439;
+    P_new[575] = t429;
     #endif
     return 0;
 }
@@ -2319,8 +2307,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
-    const double t84 = v_t83[1];
-    const double t85 = v_t83[2];
     const double t86 = v_t83[3];
     #else
     const double t83 = DERIVE_FMA(t13, P[172], P[196]);
@@ -2330,7 +2316,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const double t88 = v_t87[1];
     const double t89 = v_t87[2];
     const double t90 = v_t87[3];
     #else
@@ -2387,8 +2372,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t107_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
     const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t107_0);
-    const double t108 = v_t107[1];
-    const double t109 = v_t107[2];
     const double t110 = v_t107[3];
     #else
     const double t107 = DERIVE_FMA(t35, t83, DERIVE_FMA(t14, P[172], P[220]));
@@ -2399,7 +2382,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t111_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
     const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t111_0);
-    const double t112 = v_t111[1];
     const double t113 = v_t111[2];
     const double t114 = v_t111[3];
     #else
@@ -2461,8 +2443,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t131_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
     const derive_vd v_t131_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t131_0);
     const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t107, v_t131_1);
-    const double t132 = v_t131[1];
-    const double t133 = v_t131[2];
     const double t134 = v_t131[3];
     #else
     const double t131 = DERIVE_FMA(t52, t107, DERIVE_FMA(t36, t83, DERIVE_FMA(t15, P[172], P[100])));
@@ -2541,8 +2521,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t155_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t155_0);
     const derive_vd v_t155_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t107, v_t155_1);
     const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t131, v_t155_2);
-    const double t156 = v_t155[1];
-    const double t157 = v_t155[2];
     const double t158 = v_t155[3];
     #else
     const double t155 = DERIVE_FMA(t64, t131, DERIVE_FMA(t53, t107, DERIVE_FMA(t37, t83, DERIVE_FMA(t16, P[172], P[124]))));
@@ -2710,20 +2688,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t203 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const double t203 = v_t203[0];
-    const double t204 = v_t203[1];
-    const double t205 = v_t203[2];
     const double t206 = v_t203[3];
     #else
-    const double t203 = t12*P[172];
-    const double t204 = t12*P[173];
-    const double t205 = t12*P[174];
     const double t206 = t12*P[175];
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t207 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const double t207 = v_t207[0];
-    const double t208 = v_t207[1];
     const double t209 = v_t207[2];
     const double t210 = v_t207[3];
     #else
@@ -2782,20 +2752,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t227 = (((derive_vd){t34, t34, t34, t34}) * v_t83);
-    const double t227 = v_t227[0];
-    const double t228 = v_t227[1];
-    const double t229 = v_t227[2];
     const double t230 = v_t227[3];
     #else
-    const double t227 = t34*t83;
-    const double t228 = t34*t84;
-    const double t229 = t34*t85;
     const double t230 = t34*t86;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t231 = (((derive_vd){t34, t34, t34, t34}) * v_t87);
-    const double t231 = v_t231[0];
-    const double t232 = v_t231[1];
     const double t233 = v_t231[2];
     const double t234 = v_t231[3];
     #else
@@ -2854,14 +2816,8 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t251 = (((derive_vd){t51, t51, t51, t51}) * v_t107);
-    const double t251 = v_t251[0];
-    const double t252 = v_t251[1];
-    const double t253 = v_t251[2];
     const double t254 = v_t251[3];
     #else
-    const double t251 = t51*t107;
-    const double t252 = t51*t108;
-    const double t253 = t51*t109;
     const double t254 = t51*t110;
     #endif
     #if DERIVE_VECTOR
@@ -2926,9 +2882,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t275 = (((derive_vd){t63, t63, t63, t63}) * v_t131);
-    const double t275 = v_t275[0];
-    const double t276 = v_t275[1];
-    const double t277 = v_t275[2];
     const double t278 = v_t275[3];
     #else
     const double t275 = t63*t131;
@@ -3158,6 +3111,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t348 = DERIVE_FNMA(t78, t180, DERIVE_FNMA(t75, t156, DERIVE_FNMA(t70, t132, DERIVE_FNMA(t62, t108, DERIVE_FNMA(t50, t84, DERIVE_FNMA(t33, P[173], x[5]))))));
     const double t349 = DERIVE_FNMA(t78, t181, DERIVE_FNMA(t75, t157, DERIVE_FNMA(t70, t133, DERIVE_FNMA(t62, t109, DERIVE_FNMA(t50, t85, DERIVE_FNMA(t33, P[174], x[6]))))));
     const double t350 = DERIVE_FNMA(t78, t182, DERIVE_FNMA(t75, t158, DERIVE_FNMA(t70, t134, DERIVE_FNMA(t62, t110, DERIVE_FNMA(t50, t86, DERIVE_FNMA(t33, P[175], x[7]))))));
+    x_new[4] = t347;
+    x_new[5] = t348;
+    x_new[6] = t349;
+    x_new[7] = t350;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t351_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -3172,6 +3129,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t352 = DERIVE_FNMA(t78, t184, DERIVE_FNMA(t75, t160, DERIVE_FNMA(t70, t136, DERIVE_FNMA(t62, t112, DERIVE_FNMA(t50, t88, DERIVE_FNMA(t33, P[177], x[9]))))));
     const double t353 = DERIVE_FNMA(t78, t185, DERIVE_FNMA(t75, t161, DERIVE_FNMA(t70, t137, DERIVE_FNMA(t62, t113, DERIVE_FNMA(t50, t89, DERIVE_FNMA(t33, P[178], x[10]))))));
     const double t354 = DERIVE_FNMA(t78, t186, DERIVE_FNMA(t75, t162, DERIVE_FNMA(t70, t138, DERIVE_FNMA(t62, t114, DERIVE_FNMA(t50, t90, DERIVE_FNMA(t33, P[179], x[11]))))));
+    x_new[8] = t351;
+    x_new[9] = t352;
+    x_new[10] = t353;
+    x_new[11] = t354;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t355_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -3186,6 +3147,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t356 = DERIVE_FNMA(t78, t188, DERIVE_FNMA(t75, t164, DERIVE_FNMA(t70, t140, DERIVE_FNMA(t62, t116, DERIVE_FNMA(t50, t92, DERIVE_FNMA(t33, P[181], x[13]))))));
     const double t357 = DERIVE_FNMA(t78, t189, DERIVE_FNMA(t75, t165, DERIVE_FNMA(t70, t141, DERIVE_FNMA(t62, t117, DERIVE_FNMA(t50, t93, DERIVE_FNMA(t33, P[182], x[14]))))));
     const double t358 = DERIVE_FNMA(t78, t190, DERIVE_FNMA(t75, t166, DERIVE_FNMA(t70, t142, DERIVE_FNMA(t62, t118, DERIVE_FNMA(t50, t94, DERIVE_FNMA(t33, P[183], x[15]))))));
+    x_new[12] = t355;
+    x_new[13] = t356;
+    x_new[14] = t357;
+    x_new[15] = t358;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t359_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){x[16], x[17], x[18], x[19]}));
@@ -3200,6 +3165,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t360 = DERIVE_FNMA(t78, t192, DERIVE_FNMA(t75, t168, DERIVE_FNMA(t70, t144, DERIVE_FNMA(t62, t120, DERIVE_FNMA(t50, t96, DERIVE_FNMA(t33, P[185], x[17]))))));
     const double t361 = DERIVE_FNMA(t78, t193, DERIVE_FNMA(t75, t169, DERIVE_FNMA(t70, t145, DERIVE_FNMA(t62, t121, DERIVE_FNMA(t50, t97, DERIVE_FNMA(t33, P[186], x[18]))))));
     const double t362 = DERIVE_FNMA(t78, t194, DERIVE_FNMA(t75, t170, DERIVE_FNMA(t70, t146, DERIVE_FNMA(t62, t122, DERIVE_FNMA(t50, t98, DERIVE_FNMA(t33, P[187], x[19]))))));
+    x_new[16] = t359;
+    x_new[17] = t360;
+    x_new[18] = t361;
+    x_new[19] = t362;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t363_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){x[20], x[21], x[22], x[23]}));
@@ -3214,6 +3183,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t364 = DERIVE_FNMA(t78, t196, DERIVE_FNMA(t75, t172, DERIVE_FNMA(t70, t148, DERIVE_FNMA(t62, t124, DERIVE_FNMA(t50, t100, DERIVE_FNMA(t33, P[189], x[21]))))));
     const double t365 = DERIVE_FNMA(t78, t197, DERIVE_FNMA(t75, t173, DERIVE_FNMA(t70, t149, DERIVE_FNMA(t62, t125, DERIVE_FNMA(t50, t101, DERIVE_FNMA(t33, P[190], x[22]))))));
     const double t366 = DERIVE_FNMA(t78, t198, DERIVE_FNMA(t75, t174, DERIVE_FNMA(t70, t150, DERIVE_FNMA(t62, t126, DERIVE_FNMA(t50, t102, DERIVE_FNMA(t33, P[191], x[23]))))));
+    x_new[20] = t363;
+    x_new[21] = t364;
+    x_new[22] = t365;
+    x_new[23] = t366;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -3231,6 +3204,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t368 = DERIVE_FMA(t319, t176, DERIVE_FMA(t295, t152, DERIVE_FMA(t271, t128, DERIVE_FMA(t247, t104, DERIVE_FMA(t223, t80, DERIVE_FMA(t199, P[169], P[1]))))));
     const double t369 = DERIVE_FMA(t319, t177, DERIVE_FMA(t295, t153, DERIVE_FMA(t271, t129, DERIVE_FMA(t247, t105, DERIVE_FMA(t223, t81, DERIVE_FMA(t199, P[170], P[2]))))));
     const double t370 = DERIVE_FMA(t319, t178, DERIVE_FMA(t295, t154, DERIVE_FMA(t271, t130, DERIVE_FMA(t247, t106, DERIVE_FMA(t223, t82, DERIVE_FMA(t199, P[171], P[3]))))));
+    P_new[0] = t367;
+    P_new[1] = t368;
+    P_new[24] = t368;
+    P_new[2] = t369;
+    P_new[48] = t369;
+    P_new[3] = t370;
+    P_new[72] = t370;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -3244,6 +3224,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t372 = DERIVE_FMA(t319, t180, DERIVE_FMA(t295, t156, DERIVE_FMA(t271, t132, DERIVE_FMA(t247, t108, DERIVE_FMA(t223, t84, DERIVE_FMA(t199, P[173], P[5]))))));
     const double t373 = DERIVE_FMA(t319, t181, DERIVE_FMA(t295, t157, DERIVE_FMA(t271, t133, DERIVE_FMA(t247, t109, DERIVE_FMA(t223, t85, DERIVE_FMA(t199, P[174], P[6]))))));
     const double t374 = DERIVE_FMA(t319, t182, DERIVE_FMA(t295, t158, DERIVE_FMA(t271, t134, DERIVE_FMA(t247, t110, DERIVE_FMA(t223, t86, DERIVE_FMA(t199, P[175], P[7]))))));
+    P_new[4] = t371;
+    P_new[96] = t371;
+    P_new[5] = t372;
+    P_new[120] = t372;
+    P_new[6] = t373;
+    P_new[144] = t373;
+    P_new[7] = t374;
+    P_new[168] = t374;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -3257,6 +3245,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t376 = DERIVE_FMA(t319, t184, DERIVE_FMA(t295, t160, DERIVE_FMA(t271, t136, DERIVE_FMA(t247, t112, DERIVE_FMA(t223, t88, DERIVE_FMA(t199, P[177], P[9]))))));
     const double t377 = DERIVE_FMA(t319, t185, DERIVE_FMA(t295, t161, DERIVE_FMA(t271, t137, DERIVE_FMA(t247, t113, DERIVE_FMA(t223, t89, DERIVE_FMA(t199, P[178], P[10]))))));
     const double t378 = DERIVE_FMA(t319, t186, DERIVE_FMA(t295, t162, DERIVE_FMA(t271, t138, DERIVE_FMA(t247, t114, DERIVE_FMA(t223, t90, DERIVE_FMA(t199, P[179], P[11]))))));
+    P_new[8] = t375;
+    P_new[192] = t375;
+    P_new[9] = t376;
+    P_new[216] = t376;
+    P_new[10] = t377;
+    P_new[240] = t377;
+    P_new[11] = t378;
+    P_new[264] = t378;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -3270,6 +3266,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t380 = DERIVE_FMA(t319, t188, DERIVE_FMA(t295, t164, DERIVE_FMA(t271, t140, DERIVE_FMA(t247, t116, DERIVE_FMA(t223, t92, DERIVE_FMA(t199, P[181], P[13]))))));
     const double t381 = DERIVE_FMA(t319, t189, DERIVE_FMA(t295, t165, DERIVE_FMA(t271, t141, DERIVE_FMA(t247, t117, DERIVE_FMA(t223, t93, DERIVE_FMA(t199, P[182], P[14]))))));
     const double t382 = DERIVE_FMA(t319, t190, DERIVE_FMA(t295, t166, DERIVE_FMA(t271, t142, DERIVE_FMA(t247, t118, DERIVE_FMA(t223, t94, DERIVE_FMA(t199, P[183], P[15]))))));
+    P_new[12] = t379;
+    P_new[288] = t379;
+    P_new[13] = t380;
+    P_new[312] = t380;
+    P_new[14] = t381;
+    P_new[336] = t381;
+    P_new[15] = t382;
+    P_new[360] = t382;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -3283,6 +3287,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t384 = DERIVE_FMA(t319, t192, DERIVE_FMA(t295, t168, DERIVE_FMA(t271, t144, DERIVE_FMA(t247, t120, DERIVE_FMA(t223, t96, DERIVE_FMA(t199, P[185], P[17]))))));
     const double t385 = DERIVE_FMA(t319, t193, DERIVE_FMA(t295, t169, DERIVE_FMA(t271, t145, DERIVE_FMA(t247, t121, DERIVE_FMA(t223, t97, DERIVE_FMA(t199, P[186], P[18]))))));
     const double t386 = DERIVE_FMA(t319, t194, DERIVE_FMA(t295, t170, DERIVE_FMA(t271, t146, DERIVE_FMA(t247, t122, DERIVE_FMA(t223, t98, DERIVE_FMA(t199, P[187], P[19]))))));
+    P_new[16] = t383;
+    P_new[384] = t383;
+    P_new[17] = t384;
+    P_new[408] = t384;
+    P_new[18] = t385;
+    P_new[432] = t385;
+    P_new[19] = t386;
+    P_new[456] = t386;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
@@ -3296,6 +3308,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t388 = DERIVE_FMA(t319, t196, DERIVE_FMA(t295, t172, DERIVE_FMA(t271, t148, DERIVE_FMA(t247, t124, DERIVE_FMA(t223, t100, DERIVE_FMA(t199, P[189], P[21]))))));
     const double t389 = DERIVE_FMA(t319, t197, DERIVE_FMA(t295, t173, DERIVE_FMA(t271, t149, DERIVE_FMA(t247, t125, DERIVE_FMA(t223, t101, DERIVE_FMA(t199, P[190], P[22]))))));
     const double t390 = DERIVE_FMA(t319, t198, DERIVE_FMA(t295, t174, DERIVE_FMA(t271, t150, DERIVE_FMA(t247, t126, DERIVE_FMA(t223, t102, DERIVE_FMA(t199, P[191], P[23]))))));
+    P_new[20] = t387;
+    P_new[480] = t387;
+    P_new[21] = t388;
+    P_new[504] = t388;
+    P_new[22] = t389;
+    P_new[528] = t389;
+    P_new[23] = t390;
+    P_new[552] = t390;
     #endif
     const double t391 = DERIVE_FMA(t224, t80, DERIVE_FMA(t176, t320, DERIVE_FMA(t152, t296, DERIVE_FMA(t128, t272, DERIVE_FMA(t104, t248, DERIVE_FMA(P[169], t200, P[25]))))));
     const double t392 = DERIVE_FMA(t224, t81, DERIVE_FMA(t177, t320, DERIVE_FMA(t153, t296, DERIVE_FMA(t129, t272, DERIVE_FMA(t105, t248, DERIVE_FMA(P[170], t200, P[26]))))));
@@ -3312,6 +3332,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t395 = DERIVE_FMA(t320, t180, DERIVE_FMA(t296, t156, DERIVE_FMA(t272, t132, DERIVE_FMA(t248, t108, DERIVE_FMA(t224, t84, DERIVE_FMA(t200, P[173], P[29]))))));
     const double t396 = DERIVE_FMA(t320, t181, DERIVE_FMA(t296, t157, DERIVE_FMA(t272, t133, DERIVE_FMA(t248, t109, DERIVE_FMA(t224, t85, DERIVE_FMA(t200, P[174], P[30]))))));
     const double t397 = DERIVE_FMA(t320, t182, DERIVE_FMA(t296, t158, DERIVE_FMA(t272, t134, DERIVE_FMA(t248, t110, DERIVE_FMA(t224, t86, DERIVE_FMA(t200, P[175], P[31]))))));
+    P_new[28] = t394;
+    P_new[97] = t394;
+    P_new[29] = t395;
+    P_new[121] = t395;
+    P_new[30] = t396;
+    P_new[145] = t396;
+    P_new[31] = t397;
+    P_new[169] = t397;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t398_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
@@ -3325,6 +3353,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t399 = DERIVE_FMA(t320, t184, DERIVE_FMA(t296, t160, DERIVE_FMA(t272, t136, DERIVE_FMA(t248, t112, DERIVE_FMA(t224, t88, DERIVE_FMA(t200, P[177], P[33]))))));
     const double t400 = DERIVE_FMA(t320, t185, DERIVE_FMA(t296, t161, DERIVE_FMA(t272, t137, DERIVE_FMA(t248, t113, DERIVE_FMA(t224, t89, DERIVE_FMA(t200, P[178], P[34]))))));
     const double t401 = DERIVE_FMA(t320, t186, DERIVE_FMA(t296, t162, DERIVE_FMA(t272, t138, DERIVE_FMA(t248, t114, DERIVE_FMA(t224, t90, DERIVE_FMA(t200, P[179], P[35]))))));
+    P_new[32] = t398;
+    P_new[193] = t398;
+    P_new[33] = t399;
+    P_new[217] = t399;
+    P_new[34] = t400;
+    P_new[241] = t400;
+    P_new[35] = t401;
+    P_new[265] = t401;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t402_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
@@ -3338,6 +3374,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t403 = DERIVE_FMA(t320, t188, DERIVE_FMA(t296, t164, DERIVE_FMA(t272, t140, DERIVE_FMA(t248, t116, DERIVE_FMA(t224, t92, DERIVE_FMA(t200, P[181], P[37]))))));
     const double t404 = DERIVE_FMA(t320, t189, DERIVE_FMA(t296, t165, DERIVE_FMA(t272, t141, DERIVE_FMA(t248, t117, DERIVE_FMA(t224, t93, DERIVE_FMA(t200, P[182], P[38]))))));
     const double t405 = DERIVE_FMA(t320, t190, DERIVE_FMA(t296, t166, DERIVE_FMA(t272, t142, DERIVE_FMA(t248, t118, DERIVE_FMA(t224, t94, DERIVE_FMA(t200, P[183], P[39]))))));
+    P_new[36] = t402;
+    P_new[289] = t402;
+    P_new[37] = t403;
+    P_new[313] = t403;
+    P_new[38] = t404;
+    P_new[337] = t404;
+    P_new[39] = t405;
+    P_new[361] = t405;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t406_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -3351,6 +3395,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t407 = DERIVE_FMA(t320, t192, DERIVE_FMA(t296, t168, DERIVE_FMA(t272, t144, DERIVE_FMA(t248, t120, DERIVE_FMA(t224, t96, DERIVE_FMA(t200, P[185], P[41]))))));
     const double t408 = DERIVE_FMA(t320, t193, DERIVE_FMA(t296, t169, DERIVE_FMA(t272, t145, DERIVE_FMA(t248, t121, DERIVE_FMA(t224, t97, DERIVE_FMA(t200, P[186], P[42]))))));
     const double t409 = DERIVE_FMA(t320, t194, DERIVE_FMA(t296, t170, DERIVE_FMA(t272, t146, DERIVE_FMA(t248, t122, DERIVE_FMA(t224, t98, DERIVE_FMA(t200, P[187], P[43]))))));
+    P_new[40] = t406;
+    P_new[385] = t406;
+    P_new[41] = t407;
+    P_new[409] = t407;
+    P_new[42] = t408;
+    P_new[433] = t408;
+    P_new[43] = t409;
+    P_new[457] = t409;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t410_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -3364,6 +3416,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t411 = DERIVE_FMA(t320, t196, DERIVE_FMA(t296, t172, DERIVE_FMA(t272, t148, DERIVE_FMA(t248, t124, DERIVE_FMA(t224, t100, DERIVE_FMA(t200, P[189], P[45]))))));
     const double t412 = DERIVE_FMA(t320, t197, DERIVE_FMA(t296, t173, DERIVE_FMA(t272, t149, DERIVE_FMA(t248, t125, DERIVE_FMA(t224, t101, DERIVE_FMA(t200, P[190], P[46]))))));
     const double t413 = DERIVE_FMA(t320, t198, DERIVE_FMA(t296, t174, DERIVE_FMA(t272, t150, DERIVE_FMA(t248, t126, DERIVE_FMA(t224, t102, DERIVE_FMA(t200, P[191], P[47]))))));
+    P_new[44] = t410;
+    P_new[481] = t410;
+    P_new[45] = t411;
+    P_new[505] = t411;
+    P_new[46] = t412;
+    P_new[529] = t412;
+    P_new[47] = t413;
+    P_new[553] = t413;
     #endif
     const double t414 = DERIVE_FMA(t225, t81, DERIVE_FMA(t177, t321, DERIVE_FMA(t153, t297, DERIVE_FMA(t129, t273, DERIVE_FMA(t105, t249, DERIVE_FMA(P[170], t201, P[50]))))));
     const double t415 = DERIVE_FMA(t225, t82, DERIVE_FMA(t178, t321, DERIVE_FMA(t154, t297, DERIVE_FMA(t130, t273, DERIVE_FMA(t106, t249, DERIVE_FMA(P[171], t201, P[51]))))));
@@ -3379,6 +3439,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t417 = DERIVE_FMA(t321, t180, DERIVE_FMA(t297, t156, DERIVE_FMA(t273, t132, DERIVE_FMA(t249, t108, DERIVE_FMA(t225, t84, DERIVE_FMA(t201, P[173], P[53]))))));
     const double t418 = DERIVE_FMA(t321, t181, DERIVE_FMA(t297, t157, DERIVE_FMA(t273, t133, DERIVE_FMA(t249, t109, DERIVE_FMA(t225, t85, DERIVE_FMA(t201, P[174], P[54]))))));
     const double t419 = DERIVE_FMA(t321, t182, DERIVE_FMA(t297, t158, DERIVE_FMA(t273, t134, DERIVE_FMA(t249, t110, DERIVE_FMA(t225, t86, DERIVE_FMA(t201, P[175], P[55]))))));
+    P_new[52] = t416;
+    P_new[98] = t416;
+    P_new[53] = t417;
+    P_new[122] = t417;
+    P_new[54] = t418;
+    P_new[146] = t418;
+    P_new[55] = t419;
+    P_new[170] = t419;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t420_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -3392,6 +3460,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t421 = DERIVE_FMA(t321, t184, DERIVE_FMA(t297, t160, DERIVE_FMA(t273, t136, DERIVE_FMA(t249, t112, DERIVE_FMA(t225, t88, DERIVE_FMA(t201, P[177], P[57]))))));
     const double t422 = DERIVE_FMA(t321, t185, DERIVE_FMA(t297, t161, DERIVE_FMA(t273, t137, DERIVE_FMA(t249, t113, DERIVE_FMA(t225, t89, DERIVE_FMA(t201, P[178], P[58]))))));
     const double t423 = DERIVE_FMA(t321, t186, DERIVE_FMA(t297, t162, DERIVE_FMA(t273, t138, DERIVE_FMA(t249, t114, DERIVE_FMA(t225, t90, DERIVE_FMA(t201, P[179], P[59]))))));
+    P_new[56] = t420;
+    P_new[194] = t420;
+    P_new[57] = t421;
+    P_new[218] = t421;
+    P_new[58] = t422;
+    P_new[242] = t422;
+    P_new[59] = t423;
+    P_new[266] = t423;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t424_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -3405,6 +3481,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t425 = DERIVE_FMA(t321, t188, DERIVE_FMA(t297, t164, DERIVE_FMA(t273, t140, DERIVE_FMA(t249, t116, DERIVE_FMA(t225, t92, DERIVE_FMA(t201, P[181], P[61]))))));
     const double t426 = DERIVE_FMA(t321, t189, DERIVE_FMA(t297, t165, DERIVE_FMA(t273, t141, DERIVE_FMA(t249, t117, DERIVE_FMA(t225, t93, DERIVE_FMA(t201, P[182], P[62]))))));
     const double t427 = DERIVE_FMA(t321, t190, DERIVE_FMA(t297, t166, DERIVE_FMA(t273, t142, DERIVE_FMA(t249, t118, DERIVE_FMA(t225, t94, DERIVE_FMA(t201, P[183], P[63]))))));
+    P_new[60] = t424;
+    P_new[290] = t424;
+    P_new[61] = t425;
+    P_new[314] = t425;
+    P_new[62] = t426;
+    P_new[338] = t426;
+    P_new[63] = t427;
+    P_new[362] = t427;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t428_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -3418,6 +3502,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t429 = DERIVE_FMA(t321, t192, DERIVE_FMA(t297, t168, DERIVE_FMA(t273, t144, DERIVE_FMA(t249, t120, DERIVE_FMA(t225, t96, DERIVE_FMA(t201, P[185], P[65]))))));
     const double t430 = DERIVE_FMA(t321, t193, DERIVE_FMA(t297, t169, DERIVE_FMA(t273, t145, DERIVE_FMA(t249, t121, DERIVE_FMA(t225, t97, DERIVE_FMA(t201, P[186], P[66]))))));
     const double t431 = DERIVE_FMA(t321, t194, DERIVE_FMA(t297, t170, DERIVE_FMA(t273, t146, DERIVE_FMA(t249, t122, DERIVE_FMA(t225, t98, DERIVE_FMA(t201, P[187], P[67]))))));
+    P_new[64] = t428;
+    P_new[386] = t428;
+    P_new[65] = t429;
+    P_new[410] = t429;
+    P_new[66] = t430;
+    P_new[434] = t430;
+    P_new[67] = t431;
+    P_new[458] = t431;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t432_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -3431,6 +3523,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t433 = DERIVE_FMA(t321, t196, DERIVE_FMA(t297, t172, DERIVE_FMA(t273, t148, DERIVE_FMA(t249, t124, DERIVE_FMA(t225, t100, DERIVE_FMA(t201, P[189], P[69]))))));
     const double t434 = DERIVE_FMA(t321, t197, DERIVE_FMA(t297, t173, DERIVE_FMA(t273, t149, DERIVE_FMA(t249, t125, DERIVE_FMA(t225, t101, DERIVE_FMA(t201, P[190], P[70]))))));
     const double t435 = DERIVE_FMA(t321, t198, DERIVE_FMA(t297, t174, DERIVE_FMA(t273, t150, DERIVE_FMA(t249, t126, DERIVE_FMA(t225, t102, DERIVE_FMA(t201, P[191], P[71]))))));
+    P_new[68] = t432;
+    P_new[482] = t432;
+    P_new[69] = t433;
+    P_new[506] = t433;
+    P_new[70] = t434;
+    P_new[530] = t434;
+    P_new[71] = t435;
+    P_new[554] = t435;
     #endif
     const double t436 = DERIVE_FMA(t226, t82, DERIVE_FMA(t178, t322, DERIVE_FMA(t154, t298, DERIVE_FMA(t130, t274, DERIVE_FMA(t106, t250, DERIVE_FMA(P[171], t202, P[75]))))));
     #if DERIVE_VECTOR
@@ -3461,6 +3561,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t438 = DERIVE_FMA(t322, t180, DERIVE_FMA(t298, t156, DERIVE_FMA(t274, t132, DERIVE_FMA(t250, t108, DERIVE_FMA(t226, t84, DERIVE_FMA(t202, P[173], P[77]))))));
     const double t439 = DERIVE_FMA(t322, t181, DERIVE_FMA(t298, t157, DERIVE_FMA(t274, t133, DERIVE_FMA(t250, t109, DERIVE_FMA(t226, t85, DERIVE_FMA(t202, P[174], P[78]))))));
     const double t440 = DERIVE_FMA(t322, t182, DERIVE_FMA(t298, t158, DERIVE_FMA(t274, t134, DERIVE_FMA(t250, t110, DERIVE_FMA(t226, t86, DERIVE_FMA(t202, P[175], P[79]))))));
+    P_new[76] = t437;
+    P_new[99] = t437;
+    P_new[77] = t438;
+    P_new[123] = t438;
+    P_new[78] = t439;
+    P_new[147] = t439;
+    P_new[79] = t440;
+    P_new[171] = t440;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t441_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
@@ -3490,6 +3598,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t442 = DERIVE_FMA(t322, t184, DERIVE_FMA(t298, t160, DERIVE_FMA(t274, t136, DERIVE_FMA(t250, t112, DERIVE_FMA(t226, t88, DERIVE_FMA(t202, P[177], P[81]))))));
     const double t443 = DERIVE_FMA(t322, t185, DERIVE_FMA(t298, t161, DERIVE_FMA(t274, t137, DERIVE_FMA(t250, t113, DERIVE_FMA(t226, t89, DERIVE_FMA(t202, P[178], P[82]))))));
     const double t444 = DERIVE_FMA(t322, t186, DERIVE_FMA(t298, t162, DERIVE_FMA(t274, t138, DERIVE_FMA(t250, t114, DERIVE_FMA(t226, t90, DERIVE_FMA(t202, P[179], P[83]))))));
+    P_new[80] = t441;
+    P_new[195] = t441;
+    P_new[81] = t442;
+    P_new[219] = t442;
+    P_new[82] = t443;
+    P_new[243] = t443;
+    P_new[83] = t444;
+    P_new[267] = t444;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t445_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
@@ -3519,6 +3635,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t446 = DERIVE_FMA(t322, t188, DERIVE_FMA(t298, t164, DERIVE_FMA(t274, t140, DERIVE_FMA(t250, t116, DERIVE_FMA(t226, t92, DERIVE_FMA(t202, P[181], P[85]))))));
     const double t447 = DERIVE_FMA(t322, t189, DERIVE_FMA(t298, t165, DERIVE_FMA(t274, t141, DERIVE_FMA(t250, t117, DERIVE_FMA(t226, t93, DERIVE_FMA(t202, P[182], P[86]))))));
     const double t448 = DERIVE_FMA(t322, t190, DERIVE_FMA(t298, t166, DERIVE_FMA(t274, t142, DERIVE_FMA(t250, t118, DERIVE_FMA(t226, t94, DERIVE_FMA(t202, P[183], P[87]))))));
+    P_new[84] = t445;
+    P_new[291] = t445;
+    P_new[85] = t446;
+    P_new[315] = t446;
+    P_new[86] = t447;
+    P_new[339] = t447;
+    P_new[87] = t448;
+    P_new[363] = t448;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t449_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
@@ -3548,6 +3672,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t450 = DERIVE_FMA(t322, t192, DERIVE_FMA(t298, t168, DERIVE_FMA(t274, t144, DERIVE_FMA(t250, t120, DERIVE_FMA(t226, t96, DERIVE_FMA(t202, P[185], P[89]))))));
     const double t451 = DERIVE_FMA(t322, t193, DERIVE_FMA(t298, t169, DERIVE_FMA(t274, t145, DERIVE_FMA(t250, t121, DERIVE_FMA(t226, t97, DERIVE_FMA(t202, P[186], P[90]))))));
     const double t452 = DERIVE_FMA(t322, t194, DERIVE_FMA(t298, t170, DERIVE_FMA(t274, t146, DERIVE_FMA(t250, t122, DERIVE_FMA(t226, t98, DERIVE_FMA(t202, P[187], P[91]))))));
+    P_new[88] = t449;
+    P_new[387] = t449;
+    P_new[89] = t450;
+    P_new[411] = t450;
+    P_new[90] = t451;
+    P_new[435] = t451;
+    P_new[91] = t452;
+    P_new[459] = t452;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t453_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -3577,188 +3709,248 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t454 = DERIVE_FMA(t322, t196, DERIVE_FMA(t298, t172, DERIVE_FMA(t274, t148, DERIVE_FMA(t250, t124, DERIVE_FMA(t226, t100, DERIVE_FMA(t202, P[189], P[93]))))));
     const double t455 = DERIVE_FMA(t322, t197, DERIVE_FMA(t298, t173, DERIVE_FMA(t274, t149, DERIVE_FMA(t250, t125, DERIVE_FMA(t226, t101, DERIVE_FMA(t202, P[190], P[94]))))));
     const double t456 = DERIVE_FMA(t322, t198, DERIVE_FMA(t298, t174, DERIVE_FMA(t274, t150, DERIVE_FMA(t250, t126, DERIVE_FMA(t226, t102, DERIVE_FMA(t202, P[191], P[95]))))));
+    P_new[92] = t453;
+    P_new[483] = t453;
+    P_new[93] = t454;
+    P_new[507] = t454;
+    P_new[94] = t455;
+    P_new[531] = t455;
+    P_new[95] = t456;
+    P_new[555] = t456;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t457_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t83, v_t457_0);
-    const derive_vd v_t457_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t107, v_t457_1);
-    const derive_vd v_t457_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t131, v_t457_2);
-    const derive_vd v_t457_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t155, v_t457_3);
-    const derive_vd v_t457 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t179, v_t457_4);
+    const derive_vd v_t457_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t275);
+    const derive_vd v_t457_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t155, v_t457_0);
+    const derive_vd v_t457 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t179, v_t457_1);
     const double t458 = v_t457[1];
     const double t459 = v_t457[2];
     const double t460 = v_t457[3];
     *(derive_vd_unaligned *)&P_new[100] = v_t457;
     #else
-    const double t457 = DERIVE_FMA(t323, t179, DERIVE_FMA(t299, t155, DERIVE_FMA(t275, t131, DERIVE_FMA(t251, t107, DERIVE_FMA(t227, t83, DERIVE_FMA(t203, P[172], P[100]))))));
-    const double t458 = DERIVE_FMA(t323, t180, DERIVE_FMA(t299, t156, DERIVE_FMA(t275, t132, DERIVE_FMA(t251, t108, DERIVE_FMA(t227, t84, DERIVE_FMA(t203, P[173], P[101]))))));
-    const double t459 = DERIVE_FMA(t323, t181, DERIVE_FMA(t299, t157, DERIVE_FMA(t275, t133, DERIVE_FMA(t251, t109, DERIVE_FMA(t227, t85, DERIVE_FMA(t203, P[174], P[102]))))));
-    const double t460 = DERIVE_FMA(t323, t182, DERIVE_FMA(t299, t158, DERIVE_FMA(t275, t134, DERIVE_FMA(t251, t110, DERIVE_FMA(t227, t86, DERIVE_FMA(t203, P[175], P[103]))))));
+    const double t457 = DERIVE_FMA(t323, t179, DERIVE_FMA(t299, t155, (-0.01)*t275));
+    const double t458 = DERIVE_FMA(t323, t180, DERIVE_FMA(t299, t156, (-0.01)*t276));
+    const double t459 = DERIVE_FMA(t323, t181, DERIVE_FMA(t299, t157, (-0.01)*t277));
+    const double t460 = DERIVE_FMA(t323, t182, DERIVE_FMA(t299, t158, (-0.01)*t278));
+    P_new[100] = t457;
+    P_new[101] = t458;
+    P_new[124] = t458;
+    P_new[102] = t459;
+    P_new[148] = t459;
+    P_new[103] = t460;
+    P_new[172] = t460;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t461_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t87, v_t461_0);
-    const derive_vd v_t461_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t111, v_t461_1);
-    const derive_vd v_t461_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t135, v_t461_2);
-    const derive_vd v_t461_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t159, v_t461_3);
-    const derive_vd v_t461 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t183, v_t461_4);
+    const derive_vd v_t461_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t279);
+    const derive_vd v_t461_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t159, v_t461_0);
+    const derive_vd v_t461 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t183, v_t461_1);
     #else
-    const double t461 = DERIVE_FMA(t323, t183, DERIVE_FMA(t299, t159, DERIVE_FMA(t275, t135, DERIVE_FMA(t251, t111, DERIVE_FMA(t227, t87, DERIVE_FMA(t203, P[176], P[104]))))));
-    const double t462 = DERIVE_FMA(t323, t184, DERIVE_FMA(t299, t160, DERIVE_FMA(t275, t136, DERIVE_FMA(t251, t112, DERIVE_FMA(t227, t88, DERIVE_FMA(t203, P[177], P[105]))))));
-    const double t463 = DERIVE_FMA(t323, t185, DERIVE_FMA(t299, t161, DERIVE_FMA(t275, t137, DERIVE_FMA(t251, t113, DERIVE_FMA(t227, t89, DERIVE_FMA(t203, P[178], P[106]))))));
-    const double t464 = DERIVE_FMA(t323, t186, DERIVE_FMA(t299, t162, DERIVE_FMA(t275, t138, DERIVE_FMA(t251, t114, DERIVE_FMA(t227, t90, DERIVE_FMA(t203, P[179], P[107]))))));
+    const double t461 = DERIVE_FMA(t323, t183, DERIVE_FMA(t299, t159, (-0.01)*t279));
+    const double t462 = DERIVE_FMA(t323, t184, DERIVE_FMA(t299, t160, (-0.01)*t280));
+    const double t463 = DERIVE_FMA(t323, t185, DERIVE_FMA(t299, t161, (-0.01)*t281));
+    const double t464 = DERIVE_FMA(t323, t186, DERIVE_FMA(t299, t162, (-0.01)*t282));
+    P_new[104] = t461;
+    P_new[196] = t461;
+    P_new[105] = t462;
+    P_new[220] = t462;
+    P_new[106] = t463;
+    P_new[244] = t463;
+    P_new[107] = t464;
+    P_new[268] = t464;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t465_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t91, v_t465_0);
-    const derive_vd v_t465_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t115, v_t465_1);
-    const derive_vd v_t465_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t139, v_t465_2);
-    const derive_vd v_t465_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t163, v_t465_3);
-    const derive_vd v_t465 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t187, v_t465_4);
+    const derive_vd v_t465_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t283);
+    const derive_vd v_t465_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t163, v_t465_0);
+    const derive_vd v_t465 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t187, v_t465_1);
     #else
-    const double t465 = DERIVE_FMA(t323, t187, DERIVE_FMA(t299, t163, DERIVE_FMA(t275, t139, DERIVE_FMA(t251, t115, DERIVE_FMA(t227, t91, DERIVE_FMA(t203, P[180], P[108]))))));
-    const double t466 = DERIVE_FMA(t323, t188, DERIVE_FMA(t299, t164, DERIVE_FMA(t275, t140, DERIVE_FMA(t251, t116, DERIVE_FMA(t227, t92, DERIVE_FMA(t203, P[181], P[109]))))));
-    const double t467 = DERIVE_FMA(t323, t189, DERIVE_FMA(t299, t165, DERIVE_FMA(t275, t141, DERIVE_FMA(t251, t117, DERIVE_FMA(t227, t93, DERIVE_FMA(t203, P[182], P[110]))))));
-    const double t468 = DERIVE_FMA(t323, t190, DERIVE_FMA(t299, t166, DERIVE_FMA(t275, t142, DERIVE_FMA(t251, t118, DERIVE_FMA(t227, t94, DERIVE_FMA(t203, P[183], P[111]))))));
+    const double t465 = DERIVE_FMA(t323, t187, DERIVE_FMA(t299, t163, (-0.01)*t283));
+    const double t466 = DERIVE_FMA(t323, t188, DERIVE_FMA(t299, t164, (-0.01)*t284));
+    const double t467 = DERIVE_FMA(t323, t189, DERIVE_FMA(t299, t165, (-0.01)*t285));
+    const double t468 = DERIVE_FMA(t323, t190, DERIVE_FMA(t299, t166, (-0.01)*t286));
+    P_new[108] = t465;
+    P_new[292] = t465;
+    P_new[109] = t466;
+    P_new[316] = t466;
+    P_new[110] = t467;
+    P_new[340] = t467;
+    P_new[111] = t468;
+    P_new[364] = t468;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t469_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t469_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t95, v_t469_0);
-    const derive_vd v_t469_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t119, v_t469_1);
-    const derive_vd v_t469_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t143, v_t469_2);
-    const derive_vd v_t469_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t167, v_t469_3);
-    const derive_vd v_t469 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t191, v_t469_4);
+    const derive_vd v_t469_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t287);
+    const derive_vd v_t469_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t167, v_t469_0);
+    const derive_vd v_t469 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t191, v_t469_1);
     #else
-    const double t469 = DERIVE_FMA(t323, t191, DERIVE_FMA(t299, t167, DERIVE_FMA(t275, t143, DERIVE_FMA(t251, t119, DERIVE_FMA(t227, t95, DERIVE_FMA(t203, P[184], P[112]))))));
-    const double t470 = DERIVE_FMA(t323, t192, DERIVE_FMA(t299, t168, DERIVE_FMA(t275, t144, DERIVE_FMA(t251, t120, DERIVE_FMA(t227, t96, DERIVE_FMA(t203, P[185], P[113]))))));
-    const double t471 = DERIVE_FMA(t323, t193, DERIVE_FMA(t299, t169, DERIVE_FMA(t275, t145, DERIVE_FMA(t251, t121, DERIVE_FMA(t227, t97, DERIVE_FMA(t203, P[186], P[114]))))));
-    const double t472 = DERIVE_FMA(t323, t194, DERIVE_FMA(t299, t170, DERIVE_FMA(t275, t146, DERIVE_FMA(t251, t122, DERIVE_FMA(t227, t98, DERIVE_FMA(t203, P[187], P[115]))))));
+    const double t469 = DERIVE_FMA(t323, t191, DERIVE_FMA(t299, t167, (-0.01)*t287));
+    const double t470 = DERIVE_FMA(t323, t192, DERIVE_FMA(t299, t168, (-0.01)*t288));
+    const double t471 = DERIVE_FMA(t323, t193, DERIVE_FMA(t299, t169, (-0.01)*t289));
+    const double t472 = DERIVE_FMA(t323, t194, DERIVE_FMA(t299, t170, (-0.01)*t290));
+    P_new[112] = t469;
+    P_new[388] = t469;
+    P_new[113] = t470;
+    P_new[412] = t470;
+    P_new[114] = t471;
+    P_new[436] = t471;
+    P_new[115] = t472;
+    P_new[460] = t472;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t473_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t473_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t99, v_t473_0);
-    const derive_vd v_t473_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t123, v_t473_1);
-    const derive_vd v_t473_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t147, v_t473_2);
-    const derive_vd v_t473_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t171, v_t473_3);
-    const derive_vd v_t473 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t195, v_t473_4);
+    const derive_vd v_t473_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t291);
+    const derive_vd v_t473_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t171, v_t473_0);
+    const derive_vd v_t473 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t195, v_t473_1);
     #else
-    const double t473 = DERIVE_FMA(t323, t195, DERIVE_FMA(t299, t171, DERIVE_FMA(t275, t147, DERIVE_FMA(t251, t123, DERIVE_FMA(t227, t99, DERIVE_FMA(t203, P[188], P[116]))))));
-    const double t474 = DERIVE_FMA(t323, t196, DERIVE_FMA(t299, t172, DERIVE_FMA(t275, t148, DERIVE_FMA(t251, t124, DERIVE_FMA(t227, t100, DERIVE_FMA(t203, P[189], P[117]))))));
-    const double t475 = DERIVE_FMA(t323, t197, DERIVE_FMA(t299, t173, DERIVE_FMA(t275, t149, DERIVE_FMA(t251, t125, DERIVE_FMA(t227, t101, DERIVE_FMA(t203, P[190], P[118]))))));
-    const double t476 = DERIVE_FMA(t323, t198, DERIVE_FMA(t299, t174, DERIVE_FMA(t275, t150, DERIVE_FMA(t251, t126, DERIVE_FMA(t227, t102, DERIVE_FMA(t203, P[191], P[119]))))));
+    const double t473 = DERIVE_FMA(t323, t195, DERIVE_FMA(t299, t171, (-0.01)*t291));
+    const double t474 = DERIVE_FMA(t323, t196, DERIVE_FMA(t299, t172, (-0.01)*t292));
+    const double t475 = DERIVE_FMA(t323, t197, DERIVE_FMA(t299, t173, (-0.01)*t293));
+    const double t476 = DERIVE_FMA(t323, t198, DERIVE_FMA(t299, t174, (-0.01)*t294));
+    P_new[116] = t473;
+    P_new[484] = t473;
+    P_new[117] = t474;
+    P_new[508] = t474;
+    P_new[118] = t475;
+    P_new[532] = t475;
+    P_new[119] = t476;
+    P_new[556] = t476;
     #endif
-    const double t477 = DERIVE_FMA(t228, t84, DERIVE_FMA(t180, t324, DERIVE_FMA(t156, t300, DERIVE_FMA(t132, t276, DERIVE_FMA(t108, t252, DERIVE_FMA(P[173], t204, P[125]))))));
-    const double t478 = DERIVE_FMA(t228, t85, DERIVE_FMA(t181, t324, DERIVE_FMA(t157, t300, DERIVE_FMA(t133, t276, DERIVE_FMA(t109, t252, DERIVE_FMA(P[174], t204, P[126]))))));
-    const double t479 = DERIVE_FMA(t228, t86, DERIVE_FMA(t182, t324, DERIVE_FMA(t158, t300, DERIVE_FMA(t134, t276, DERIVE_FMA(t110, t252, DERIVE_FMA(P[175], t204, P[127]))))));
+    const double t477 = DERIVE_FMA(t180, t324, (-0.01)*t300);
+    const double t478 = DERIVE_FMA(t181, t324, (-0.01)*t301);
+    const double t479 = DERIVE_FMA(t182, t324, (-0.01)*t302);
     #if DERIVE_VECTOR
-    const derive_vd v_t480_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t480_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t87, v_t480_0);
-    const derive_vd v_t480_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t111, v_t480_1);
-    const derive_vd v_t480_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t135, v_t480_2);
-    const derive_vd v_t480_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t159, v_t480_3);
-    const derive_vd v_t480 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t183, v_t480_4);
+    const derive_vd v_t480_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t303);
+    const derive_vd v_t480 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t183, v_t480_0);
     #else
-    const double t480 = DERIVE_FMA(t324, t183, DERIVE_FMA(t300, t159, DERIVE_FMA(t276, t135, DERIVE_FMA(t252, t111, DERIVE_FMA(t228, t87, DERIVE_FMA(t204, P[176], P[128]))))));
-    const double t481 = DERIVE_FMA(t324, t184, DERIVE_FMA(t300, t160, DERIVE_FMA(t276, t136, DERIVE_FMA(t252, t112, DERIVE_FMA(t228, t88, DERIVE_FMA(t204, P[177], P[129]))))));
-    const double t482 = DERIVE_FMA(t324, t185, DERIVE_FMA(t300, t161, DERIVE_FMA(t276, t137, DERIVE_FMA(t252, t113, DERIVE_FMA(t228, t89, DERIVE_FMA(t204, P[178], P[130]))))));
-    const double t483 = DERIVE_FMA(t324, t186, DERIVE_FMA(t300, t162, DERIVE_FMA(t276, t138, DERIVE_FMA(t252, t114, DERIVE_FMA(t228, t90, DERIVE_FMA(t204, P[179], P[131]))))));
+    const double t480 = DERIVE_FMA(t324, t183, (-0.01)*t303);
+    const double t481 = DERIVE_FMA(t324, t184, (-0.01)*t304);
+    const double t482 = DERIVE_FMA(t324, t185, (-0.01)*t305);
+    const double t483 = DERIVE_FMA(t324, t186, (-0.01)*t306);
+    P_new[128] = t480;
+    P_new[197] = t480;
+    P_new[129] = t481;
+    P_new[221] = t481;
+    P_new[130] = t482;
+    P_new[245] = t482;
+    P_new[131] = t483;
+    P_new[269] = t483;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t484_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t484_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t91, v_t484_0);
-    const derive_vd v_t484_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t115, v_t484_1);
-    const derive_vd v_t484_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t139, v_t484_2);
-    const derive_vd v_t484_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t163, v_t484_3);
-    const derive_vd v_t484 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t187, v_t484_4);
+    const derive_vd v_t484_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t307);
+    const derive_vd v_t484 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t187, v_t484_0);
     #else
-    const double t484 = DERIVE_FMA(t324, t187, DERIVE_FMA(t300, t163, DERIVE_FMA(t276, t139, DERIVE_FMA(t252, t115, DERIVE_FMA(t228, t91, DERIVE_FMA(t204, P[180], P[132]))))));
-    const double t485 = DERIVE_FMA(t324, t188, DERIVE_FMA(t300, t164, DERIVE_FMA(t276, t140, DERIVE_FMA(t252, t116, DERIVE_FMA(t228, t92, DERIVE_FMA(t204, P[181], P[133]))))));
-    const double t486 = DERIVE_FMA(t324, t189, DERIVE_FMA(t300, t165, DERIVE_FMA(t276, t141, DERIVE_FMA(t252, t117, DERIVE_FMA(t228, t93, DERIVE_FMA(t204, P[182], P[134]))))));
-    const double t487 = DERIVE_FMA(t324, t190, DERIVE_FMA(t300, t166, DERIVE_FMA(t276, t142, DERIVE_FMA(t252, t118, DERIVE_FMA(t228, t94, DERIVE_FMA(t204, P[183], P[135]))))));
+    const double t484 = DERIVE_FMA(t324, t187, (-0.01)*t307);
+    const double t485 = DERIVE_FMA(t324, t188, (-0.01)*t308);
+    const double t486 = DERIVE_FMA(t324, t189, (-0.01)*t309);
+    const double t487 = DERIVE_FMA(t324, t190, (-0.01)*t310);
+    P_new[132] = t484;
+    P_new[293] = t484;
+    P_new[133] = t485;
+    P_new[317] = t485;
+    P_new[134] = t486;
+    P_new[341] = t486;
+    P_new[135] = t487;
+    P_new[365] = t487;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t488_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t488_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t95, v_t488_0);
-    const derive_vd v_t488_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t119, v_t488_1);
-    const derive_vd v_t488_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t143, v_t488_2);
-    const derive_vd v_t488_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t167, v_t488_3);
-    const derive_vd v_t488 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t191, v_t488_4);
+    const derive_vd v_t488_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t311);
+    const derive_vd v_t488 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t191, v_t488_0);
     #else
-    const double t488 = DERIVE_FMA(t324, t191, DERIVE_FMA(t300, t167, DERIVE_FMA(t276, t143, DERIVE_FMA(t252, t119, DERIVE_FMA(t228, t95, DERIVE_FMA(t204, P[184], P[136]))))));
-    const double t489 = DERIVE_FMA(t324, t192, DERIVE_FMA(t300, t168, DERIVE_FMA(t276, t144, DERIVE_FMA(t252, t120, DERIVE_FMA(t228, t96, DERIVE_FMA(t204, P[185], P[137]))))));
-    const double t490 = DERIVE_FMA(t324, t193, DERIVE_FMA(t300, t169, DERIVE_FMA(t276, t145, DERIVE_FMA(t252, t121, DERIVE_FMA(t228, t97, DERIVE_FMA(t204, P[186], P[138]))))));
-    const double t491 = DERIVE_FMA(t324, t194, DERIVE_FMA(t300, t170, DERIVE_FMA(t276, t146, DERIVE_FMA(t252, t122, DERIVE_FMA(t228, t98, DERIVE_FMA(t204, P[187], P[139]))))));
+    const double t488 = DERIVE_FMA(t324, t191, (-0.01)*t311);
+    const double t489 = DERIVE_FMA(t324, t192, (-0.01)*t312);
+    const double t490 = DERIVE_FMA(t324, t193, (-0.01)*t313);
+    const double t491 = DERIVE_FMA(t324, t194, (-0.01)*t314);
+    P_new[136] = t488;
+    P_new[389] = t488;
+    P_new[137] = t489;
+    P_new[413] = t489;
+    P_new[138] = t490;
+    P_new[437] = t490;
+    P_new[139] = t491;
+    P_new[461] = t491;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t492_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t492_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t99, v_t492_0);
-    const derive_vd v_t492_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t123, v_t492_1);
-    const derive_vd v_t492_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t147, v_t492_2);
-    const derive_vd v_t492_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t171, v_t492_3);
-    const derive_vd v_t492 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t195, v_t492_4);
+    const derive_vd v_t492_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t315);
+    const derive_vd v_t492 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t195, v_t492_0);
     #else
-    const double t492 = DERIVE_FMA(t324, t195, DERIVE_FMA(t300, t171, DERIVE_FMA(t276, t147, DERIVE_FMA(t252, t123, DERIVE_FMA(t228, t99, DERIVE_FMA(t204, P[188], P[140]))))));
-    const double t493 = DERIVE_FMA(t324, t196, DERIVE_FMA(t300, t172, DERIVE_FMA(t276, t148, DERIVE_FMA(t252, t124, DERIVE_FMA(t228, t100, DERIVE_FMA(t204, P[189], P[141]))))));
-    const double t494 = DERIVE_FMA(t324, t197, DERIVE_FMA(t300, t173, DERIVE_FMA(t276, t149, DERIVE_FMA(t252, t125, DERIVE_FMA(t228, t101, DERIVE_FMA(t204, P[190], P[142]))))));
-    const double t495 = DERIVE_FMA(t324, t198, DERIVE_FMA(t300, t174, DERIVE_FMA(t276, t150, DERIVE_FMA(t252, t126, DERIVE_FMA(t228, t102, DERIVE_FMA(t204, P[191], P[143]))))));
+    const double t492 = DERIVE_FMA(t324, t195, (-0.01)*t315);
+    const double t493 = DERIVE_FMA(t324, t196, (-0.01)*t316);
+    const double t494 = DERIVE_FMA(t324, t197, (-0.01)*t317);
+    const double t495 = DERIVE_FMA(t324, t198, (-0.01)*t318);
+    P_new[140] = t492;
+    P_new[485] = t492;
+    P_new[141] = t493;
+    P_new[509] = t493;
+    P_new[142] = t494;
+    P_new[533] = t494;
+    P_new[143] = t495;
+    P_new[557] = t495;
     #endif
-    const double t496 = DERIVE_FMA(t229, t85, DERIVE_FMA(t181, t325, DERIVE_FMA(t157, t301, DERIVE_FMA(t133, t277, DERIVE_FMA(t109, t253, DERIVE_FMA(P[174], t205, P[150]))))));
-    const double t497 = DERIVE_FMA(t229, t86, DERIVE_FMA(t182, t325, DERIVE_FMA(t158, t301, DERIVE_FMA(t134, t277, DERIVE_FMA(t110, t253, DERIVE_FMA(P[175], t205, P[151]))))));
+    const double t496 = (-0.04)*t325;
+    const double t497 = (-0.04)*t326;
     #if DERIVE_VECTOR
-    const derive_vd v_t498_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t498_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t87, v_t498_0);
-    const derive_vd v_t498_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t111, v_t498_1);
-    const derive_vd v_t498_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t135, v_t498_2);
-    const derive_vd v_t498_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t159, v_t498_3);
-    const derive_vd v_t498 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t183, v_t498_4);
+    const derive_vd v_t498 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t327);
     #else
-    const double t498 = DERIVE_FMA(t325, t183, DERIVE_FMA(t301, t159, DERIVE_FMA(t277, t135, DERIVE_FMA(t253, t111, DERIVE_FMA(t229, t87, DERIVE_FMA(t205, P[176], P[152]))))));
-    const double t499 = DERIVE_FMA(t325, t184, DERIVE_FMA(t301, t160, DERIVE_FMA(t277, t136, DERIVE_FMA(t253, t112, DERIVE_FMA(t229, t88, DERIVE_FMA(t205, P[177], P[153]))))));
-    const double t500 = DERIVE_FMA(t325, t185, DERIVE_FMA(t301, t161, DERIVE_FMA(t277, t137, DERIVE_FMA(t253, t113, DERIVE_FMA(t229, t89, DERIVE_FMA(t205, P[178], P[154]))))));
-    const double t501 = DERIVE_FMA(t325, t186, DERIVE_FMA(t301, t162, DERIVE_FMA(t277, t138, DERIVE_FMA(t253, t114, DERIVE_FMA(t229, t90, DERIVE_FMA(t205, P[179], P[155]))))));
+    const double t498 = (-0.04)*t327;
+    const double t499 = (-0.04)*t328;
+    const double t500 = (-0.04)*t329;
+    const double t501 = (-0.04)*t330;
+    P_new[152] = t498;
+    P_new[198] = t498;
+    P_new[153] = t499;
+    P_new[222] = t499;
+    P_new[154] = t500;
+    P_new[246] = t500;
+    P_new[155] = t501;
+    P_new[270] = t501;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t502_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t502_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t91, v_t502_0);
-    const derive_vd v_t502_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t115, v_t502_1);
-    const derive_vd v_t502_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t139, v_t502_2);
-    const derive_vd v_t502_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t163, v_t502_3);
-    const derive_vd v_t502 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t187, v_t502_4);
+    const derive_vd v_t502 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t331);
     #else
-    const double t502 = DERIVE_FMA(t325, t187, DERIVE_FMA(t301, t163, DERIVE_FMA(t277, t139, DERIVE_FMA(t253, t115, DERIVE_FMA(t229, t91, DERIVE_FMA(t205, P[180], P[156]))))));
-    const double t503 = DERIVE_FMA(t325, t188, DERIVE_FMA(t301, t164, DERIVE_FMA(t277, t140, DERIVE_FMA(t253, t116, DERIVE_FMA(t229, t92, DERIVE_FMA(t205, P[181], P[157]))))));
-    const double t504 = DERIVE_FMA(t325, t189, DERIVE_FMA(t301, t165, DERIVE_FMA(t277, t141, DERIVE_FMA(t253, t117, DERIVE_FMA(t229, t93, DERIVE_FMA(t205, P[182], P[158]))))));
-    const double t505 = DERIVE_FMA(t325, t190, DERIVE_FMA(t301, t166, DERIVE_FMA(t277, t142, DERIVE_FMA(t253, t118, DERIVE_FMA(t229, t94, DERIVE_FMA(t205, P[183], P[159]))))));
+    const double t502 = (-0.04)*t331;
+    const double t503 = (-0.04)*t332;
+    const double t504 = (-0.04)*t333;
+    const double t505 = (-0.04)*t334;
+    P_new[156] = t502;
+    P_new[294] = t502;
+    P_new[157] = t503;
+    P_new[318] = t503;
+    P_new[158] = t504;
+    P_new[342] = t504;
+    P_new[159] = t505;
+    P_new[366] = t505;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t506_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t506_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t95, v_t506_0);
-    const derive_vd v_t506_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t119, v_t506_1);
-    const derive_vd v_t506_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t143, v_t506_2);
-    const derive_vd v_t506_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t167, v_t506_3);
-    const derive_vd v_t506 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t191, v_t506_4);
+    const derive_vd v_t506 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t335);
     #else
-    const double t506 = DERIVE_FMA(t325, t191, DERIVE_FMA(t301, t167, DERIVE_FMA(t277, t143, DERIVE_FMA(t253, t119, DERIVE_FMA(t229, t95, DERIVE_FMA(t205, P[184], P[160]))))));
-    const double t507 = DERIVE_FMA(t325, t192, DERIVE_FMA(t301, t168, DERIVE_FMA(t277, t144, DERIVE_FMA(t253, t120, DERIVE_FMA(t229, t96, DERIVE_FMA(t205, P[185], P[161]))))));
-    const double t508 = DERIVE_FMA(t325, t193, DERIVE_FMA(t301, t169, DERIVE_FMA(t277, t145, DERIVE_FMA(t253, t121, DERIVE_FMA(t229, t97, DERIVE_FMA(t205, P[186], P[162]))))));
-    const double t509 = DERIVE_FMA(t325, t194, DERIVE_FMA(t301, t170, DERIVE_FMA(t277, t146, DERIVE_FMA(t253, t122, DERIVE_FMA(t229, t98, DERIVE_FMA(t205, P[187], P[163]))))));
+    const double t506 = (-0.04)*t335;
+    const double t507 = (-0.04)*t336;
+    const double t508 = (-0.04)*t337;
+    const double t509 = (-0.04)*t338;
+    P_new[160] = t506;
+    P_new[390] = t506;
+    P_new[161] = t507;
+    P_new[414] = t507;
+    P_new[162] = t508;
+    P_new[438] = t508;
+    P_new[163] = t509;
+    P_new[462] = t509;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t510_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t510_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t99, v_t510_0);
-    const derive_vd v_t510_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t123, v_t510_1);
-    const derive_vd v_t510_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t147, v_t510_2);
-    const derive_vd v_t510_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t171, v_t510_3);
-    const derive_vd v_t510 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t195, v_t510_4);
+    const derive_vd v_t510 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t339);
     #else
-    const double t510 = DERIVE_FMA(t325, t195, DERIVE_FMA(t301, t171, DERIVE_FMA(t277, t147, DERIVE_FMA(t253, t123, DERIVE_FMA(t229, t99, DERIVE_FMA(t205, P[188], P[164]))))));
-    const double t511 = DERIVE_FMA(t325, t196, DERIVE_FMA(t301, t172, DERIVE_FMA(t277, t148, DERIVE_FMA(t253, t124, DERIVE_FMA(t229, t100, DERIVE_FMA(t205, P[189], P[165]))))));
-    const double t512 = DERIVE_FMA(t325, t197, DERIVE_FMA(t301, t173, DERIVE_FMA(t277, t149, DERIVE_FMA(t253, t125, DERIVE_FMA(t229, t101, DERIVE_FMA(t205, P[190], P[166]))))));
-    const double t513 = DERIVE_FMA(t325, t198, DERIVE_FMA(t301, t174, DERIVE_FMA(t277, t150, DERIVE_FMA(t253, t126, DERIVE_FMA(t229, t102, DERIVE_FMA(t205, P[191], P[167]))))));
+    const double t510 = (-0.04)*t339;
+    const double t511 = (-0.04)*t340;
+    const double t512 = (-0.04)*t341;
+    const double t513 = (-0.04)*t342;
+    P_new[164] = t510;
+    P_new[486] = t510;
+    P_new[165] = t511;
+    P_new[510] = t511;
+    P_new[166] = t512;
+    P_new[534] = t512;
+    P_new[167] = t513;
+    P_new[558] = t513;
     #endif
-    const double t514 = DERIVE_FMA(t230, t86, DERIVE_FMA(t182, t326, DERIVE_FMA(t158, t302, DERIVE_FMA(t134, t278, DERIVE_FMA(t110, t254, DERIVE_FMA(P[175], t206, P[175]))))));
+    const double t514 = DERIVE_FMA(t230, t86, DERIVE_FMA(t182, t326, DERIVE_FMA(t158, t302, DERIVE_FMA(t134, t278, DERIVE_FMA(t110, t254, (-2.25)*t206)))));
     #if DERIVE_VECTOR
-    const derive_vd v_t515_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd v_t515_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t207);
     const derive_vd v_t515_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t87, v_t515_0);
     const derive_vd v_t515_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t111, v_t515_1);
     const derive_vd v_t515_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t135, v_t515_2);
@@ -3781,13 +3973,21 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[244] = tr_v_t461_c2;
     *(derive_vd_unaligned *)&P_new[268] = tr_v_t461_c3;
     #else
-    const double t515 = DERIVE_FMA(t326, t183, DERIVE_FMA(t302, t159, DERIVE_FMA(t278, t135, DERIVE_FMA(t254, t111, DERIVE_FMA(t230, t87, DERIVE_FMA(t206, P[176], P[176]))))));
-    const double t516 = DERIVE_FMA(t326, t184, DERIVE_FMA(t302, t160, DERIVE_FMA(t278, t136, DERIVE_FMA(t254, t112, DERIVE_FMA(t230, t88, DERIVE_FMA(t206, P[177], P[177]))))));
-    const double t517 = DERIVE_FMA(t326, t185, DERIVE_FMA(t302, t161, DERIVE_FMA(t278, t137, DERIVE_FMA(t254, t113, DERIVE_FMA(t230, t89, DERIVE_FMA(t206, P[178], P[178]))))));
-    const double t518 = DERIVE_FMA(t326, t186, DERIVE_FMA(t302, t162, DERIVE_FMA(t278, t138, DERIVE_FMA(t254, t114, DERIVE_FMA(t230, t90, DERIVE_FMA(t206, P[179], P[179]))))));
+    const double t515 = DERIVE_FMA(t326, t183, DERIVE_FMA(t302, t159, DERIVE_FMA(t278, t135, DERIVE_FMA(t254, t111, DERIVE_FMA(t230, t87, (-2.25)*t207)))));
+    const double t516 = DERIVE_FMA(t326, t184, DERIVE_FMA(t302, t160, DERIVE_FMA(t278, t136, DERIVE_FMA(t254, t112, DERIVE_FMA(t230, t88, (-2.25)*t208)))));
+    const double t517 = DERIVE_FMA(t326, t185, DERIVE_FMA(t302, t161, DERIVE_FMA(t278, t137, DERIVE_FMA(t254, t113, DERIVE_FMA(t230, t89, (-2.25)*t209)))));
+    const double t518 = DERIVE_FMA(t326, t186, DERIVE_FMA(t302, t162, DERIVE_FMA(t278, t138, DERIVE_FMA(t254, t114, DERIVE_FMA(t230, t90, (-2.25)*t210)))));
+    P_new[176] = t515;
+    P_new[199] = t515;
+    P_new[177] = t516;
+    P_new[223] = t516;
+    P_new[178] = t517;
+    P_new[247] = t517;
+    P_new[179] = t518;
+    P_new[271] = t518;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd v_t519_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t211);
     const derive_vd v_t519_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t91, v_t519_0);
     const derive_vd v_t519_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t115, v_t519_1);
     const derive_vd v_t519_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t139, v_t519_2);
@@ -3810,13 +4010,21 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[340] = tr_v_t465_c2;
     *(derive_vd_unaligned *)&P_new[364] = tr_v_t465_c3;
     #else
-    const double t519 = DERIVE_FMA(t326, t187, DERIVE_FMA(t302, t163, DERIVE_FMA(t278, t139, DERIVE_FMA(t254, t115, DERIVE_FMA(t230, t91, DERIVE_FMA(t206, P[180], P[180]))))));
-    const double t520 = DERIVE_FMA(t326, t188, DERIVE_FMA(t302, t164, DERIVE_FMA(t278, t140, DERIVE_FMA(t254, t116, DERIVE_FMA(t230, t92, DERIVE_FMA(t206, P[181], P[181]))))));
-    const double t521 = DERIVE_FMA(t326, t189, DERIVE_FMA(t302, t165, DERIVE_FMA(t278, t141, DERIVE_FMA(t254, t117, DERIVE_FMA(t230, t93, DERIVE_FMA(t206, P[182], P[182]))))));
-    const double t522 = DERIVE_FMA(t326, t190, DERIVE_FMA(t302, t166, DERIVE_FMA(t278, t142, DERIVE_FMA(t254, t118, DERIVE_FMA(t230, t94, DERIVE_FMA(t206, P[183], P[183]))))));
+    const double t519 = DERIVE_FMA(t326, t187, DERIVE_FMA(t302, t163, DERIVE_FMA(t278, t139, DERIVE_FMA(t254, t115, DERIVE_FMA(t230, t91, (-2.25)*t211)))));
+    const double t520 = DERIVE_FMA(t326, t188, DERIVE_FMA(t302, t164, DERIVE_FMA(t278, t140, DERIVE_FMA(t254, t116, DERIVE_FMA(t230, t92, (-2.25)*t212)))));
+    const double t521 = DERIVE_FMA(t326, t189, DERIVE_FMA(t302, t165, DERIVE_FMA(t278, t141, DERIVE_FMA(t254, t117, DERIVE_FMA(t230, t93, (-2.25)*t213)))));
+    const double t522 = DERIVE_FMA(t326, t190, DERIVE_FMA(t302, t166, DERIVE_FMA(t278, t142, DERIVE_FMA(t254, t118, DERIVE_FMA(t230, t94, (-2.25)*t214)))));
+    P_new[180] = t519;
+    P_new[295] = t519;
+    P_new[181] = t520;
+    P_new[319] = t520;
+    P_new[182] = t521;
+    P_new[343] = t521;
+    P_new[183] = t522;
+    P_new[367] = t522;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t523_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd v_t523_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t215);
     const derive_vd v_t523_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t95, v_t523_0);
     const derive_vd v_t523_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t119, v_t523_1);
     const derive_vd v_t523_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t143, v_t523_2);
@@ -3839,13 +4047,21 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[436] = tr_v_t469_c2;
     *(derive_vd_unaligned *)&P_new[460] = tr_v_t469_c3;
     #else
-    const double t523 = DERIVE_FMA(t326, t191, DERIVE_FMA(t302, t167, DERIVE_FMA(t278, t143, DERIVE_FMA(t254, t119, DERIVE_FMA(t230, t95, DERIVE_FMA(t206, P[184], P[184]))))));
-    const double t524 = DERIVE_FMA(t326, t192, DERIVE_FMA(t302, t168, DERIVE_FMA(t278, t144, DERIVE_FMA(t254, t120, DERIVE_FMA(t230, t96, DERIVE_FMA(t206, P[185], P[185]))))));
-    const double t525 = DERIVE_FMA(t326, t193, DERIVE_FMA(t302, t169, DERIVE_FMA(t278, t145, DERIVE_FMA(t254, t121, DERIVE_FMA(t230, t97, DERIVE_FMA(t206, P[186], P[186]))))));
-    const double t526 = DERIVE_FMA(t326, t194, DERIVE_FMA(t302, t170, DERIVE_FMA(t278, t146, DERIVE_FMA(t254, t122, DERIVE_FMA(t230, t98, DERIVE_FMA(t206, P[187], P[187]))))));
+    const double t523 = DERIVE_FMA(t326, t191, DERIVE_FMA(t302, t167, DERIVE_FMA(t278, t143, DERIVE_FMA(t254, t119, DERIVE_FMA(t230, t95, (-2.25)*t215)))));
+    const double t524 = DERIVE_FMA(t326, t192, DERIVE_FMA(t302, t168, DERIVE_FMA(t278, t144, DERIVE_FMA(t254, t120, DERIVE_FMA(t230, t96, (-2.25)*t216)))));
+    const double t525 = DERIVE_FMA(t326, t193, DERIVE_FMA(t302, t169, DERIVE_FMA(t278, t145, DERIVE_FMA(t254, t121, DERIVE_FMA(t230, t97, (-2.25)*t217)))));
+    const double t526 = DERIVE_FMA(t326, t194, DERIVE_FMA(t302, t170, DERIVE_FMA(t278, t146, DERIVE_FMA(t254, t122, DERIVE_FMA(t230, t98, (-2.25)*t218)))));
+    P_new[184] = t523;
+    P_new[391] = t523;
+    P_new[185] = t524;
+    P_new[415] = t524;
+    P_new[186] = t525;
+    P_new[439] = t525;
+    P_new[187] = t526;
+    P_new[463] = t526;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t527_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t527_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t219);
     const derive_vd v_t527_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t99, v_t527_0);
     const derive_vd v_t527_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t123, v_t527_1);
     const derive_vd v_t527_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t147, v_t527_2);
@@ -3868,108 +4084,161 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[532] = tr_v_t473_c2;
     *(derive_vd_unaligned *)&P_new[556] = tr_v_t473_c3;
     #else
-    const double t527 = DERIVE_FMA(t326, t195, DERIVE_FMA(t302, t171, DERIVE_FMA(t278, t147, DERIVE_FMA(t254, t123, DERIVE_FMA(t230, t99, DERIVE_FMA(t206, P[188], P[188]))))));
-    const double t528 = DERIVE_FMA(t326, t196, DERIVE_FMA(t302, t172, DERIVE_FMA(t278, t148, DERIVE_FMA(t254, t124, DERIVE_FMA(t230, t100, DERIVE_FMA(t206, P[189], P[189]))))));
-    const double t529 = DERIVE_FMA(t326, t197, DERIVE_FMA(t302, t173, DERIVE_FMA(t278, t149, DERIVE_FMA(t254, t125, DERIVE_FMA(t230, t101, DERIVE_FMA(t206, P[190], P[190]))))));
-    const double t530 = DERIVE_FMA(t326, t198, DERIVE_FMA(t302, t174, DERIVE_FMA(t278, t150, DERIVE_FMA(t254, t126, DERIVE_FMA(t230, t102, DERIVE_FMA(t206, P[191], P[191]))))));
+    const double t527 = DERIVE_FMA(t326, t195, DERIVE_FMA(t302, t171, DERIVE_FMA(t278, t147, DERIVE_FMA(t254, t123, DERIVE_FMA(t230, t99, (-2.25)*t219)))));
+    const double t528 = DERIVE_FMA(t326, t196, DERIVE_FMA(t302, t172, DERIVE_FMA(t278, t148, DERIVE_FMA(t254, t124, DERIVE_FMA(t230, t100, (-2.25)*t220)))));
+    const double t529 = DERIVE_FMA(t326, t197, DERIVE_FMA(t302, t173, DERIVE_FMA(t278, t149, DERIVE_FMA(t254, t125, DERIVE_FMA(t230, t101, (-2.25)*t221)))));
+    const double t530 = DERIVE_FMA(t326, t198, DERIVE_FMA(t302, t174, DERIVE_FMA(t278, t150, DERIVE_FMA(t254, t126, DERIVE_FMA(t230, t102, (-2.25)*t222)))));
+    P_new[188] = t527;
+    P_new[487] = t527;
+    P_new[189] = t528;
+    P_new[511] = t528;
+    P_new[190] = t529;
+    P_new[535] = t529;
+    P_new[191] = t530;
+    P_new[559] = t530;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t531_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const derive_vd v_t531_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t87, v_t531_0);
-    const derive_vd v_t531_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t111, v_t531_1);
-    const derive_vd v_t531_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t135, v_t531_2);
-    const derive_vd v_t531_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t159, v_t531_3);
-    const derive_vd v_t531 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t183, v_t531_4);
+    const derive_vd v_t531_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t231);
+    const derive_vd v_t531_1 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t111, v_t531_0);
+    const derive_vd v_t531_2 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t135, v_t531_1);
+    const derive_vd v_t531_3 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t159, v_t531_2);
+    const derive_vd v_t531 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t183, v_t531_3);
     const double t532 = v_t531[1];
     const double t533 = v_t531[2];
     const double t534 = v_t531[3];
     *(derive_vd_unaligned *)&P_new[200] = v_t531;
     #else
-    const double t531 = DERIVE_FMA(t327, t183, DERIVE_FMA(t303, t159, DERIVE_FMA(t279, t135, DERIVE_FMA(t255, t111, DERIVE_FMA(t231, t87, DERIVE_FMA(t207, P[176], P[200]))))));
-    const double t532 = DERIVE_FMA(t327, t184, DERIVE_FMA(t303, t160, DERIVE_FMA(t279, t136, DERIVE_FMA(t255, t112, DERIVE_FMA(t231, t88, DERIVE_FMA(t207, P[177], P[201]))))));
-    const double t533 = DERIVE_FMA(t327, t185, DERIVE_FMA(t303, t161, DERIVE_FMA(t279, t137, DERIVE_FMA(t255, t113, DERIVE_FMA(t231, t89, DERIVE_FMA(t207, P[178], P[202]))))));
-    const double t534 = DERIVE_FMA(t327, t186, DERIVE_FMA(t303, t162, DERIVE_FMA(t279, t138, DERIVE_FMA(t255, t114, DERIVE_FMA(t231, t90, DERIVE_FMA(t207, P[179], P[203]))))));
+    const double t531 = DERIVE_FMA(t327, t183, DERIVE_FMA(t303, t159, DERIVE_FMA(t279, t135, DERIVE_FMA(t255, t111, (-2.25)*t231))));
+    const double t532 = DERIVE_FMA(t327, t184, DERIVE_FMA(t303, t160, DERIVE_FMA(t279, t136, DERIVE_FMA(t255, t112, (-2.25)*t232))));
+    const double t533 = DERIVE_FMA(t327, t185, DERIVE_FMA(t303, t161, DERIVE_FMA(t279, t137, DERIVE_FMA(t255, t113, (-2.25)*t233))));
+    const double t534 = DERIVE_FMA(t327, t186, DERIVE_FMA(t303, t162, DERIVE_FMA(t279, t138, DERIVE_FMA(t255, t114, (-2.25)*t234))));
+    P_new[200] = t531;
+    P_new[201] = t532;
+    P_new[224] = t532;
+    P_new[202] = t533;
+    P_new[248] = t533;
+    P_new[203] = t534;
+    P_new[272] = t534;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t535_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const derive_vd v_t535_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t91, v_t535_0);
-    const derive_vd v_t535_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t115, v_t535_1);
-    const derive_vd v_t535_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t139, v_t535_2);
-    const derive_vd v_t535_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t163, v_t535_3);
-    const derive_vd v_t535 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t187, v_t535_4);
+    const derive_vd v_t535_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t235);
+    const derive_vd v_t535_1 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t115, v_t535_0);
+    const derive_vd v_t535_2 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t139, v_t535_1);
+    const derive_vd v_t535_3 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t163, v_t535_2);
+    const derive_vd v_t535 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t187, v_t535_3);
     #else
-    const double t535 = DERIVE_FMA(t327, t187, DERIVE_FMA(t303, t163, DERIVE_FMA(t279, t139, DERIVE_FMA(t255, t115, DERIVE_FMA(t231, t91, DERIVE_FMA(t207, P[180], P[204]))))));
-    const double t536 = DERIVE_FMA(t327, t188, DERIVE_FMA(t303, t164, DERIVE_FMA(t279, t140, DERIVE_FMA(t255, t116, DERIVE_FMA(t231, t92, DERIVE_FMA(t207, P[181], P[205]))))));
-    const double t537 = DERIVE_FMA(t327, t189, DERIVE_FMA(t303, t165, DERIVE_FMA(t279, t141, DERIVE_FMA(t255, t117, DERIVE_FMA(t231, t93, DERIVE_FMA(t207, P[182], P[206]))))));
-    const double t538 = DERIVE_FMA(t327, t190, DERIVE_FMA(t303, t166, DERIVE_FMA(t279, t142, DERIVE_FMA(t255, t118, DERIVE_FMA(t231, t94, DERIVE_FMA(t207, P[183], P[207]))))));
+    const double t535 = DERIVE_FMA(t327, t187, DERIVE_FMA(t303, t163, DERIVE_FMA(t279, t139, DERIVE_FMA(t255, t115, (-2.25)*t235))));
+    const double t536 = DERIVE_FMA(t327, t188, DERIVE_FMA(t303, t164, DERIVE_FMA(t279, t140, DERIVE_FMA(t255, t116, (-2.25)*t236))));
+    const double t537 = DERIVE_FMA(t327, t189, DERIVE_FMA(t303, t165, DERIVE_FMA(t279, t141, DERIVE_FMA(t255, t117, (-2.25)*t237))));
+    const double t538 = DERIVE_FMA(t327, t190, DERIVE_FMA(t303, t166, DERIVE_FMA(t279, t142, DERIVE_FMA(t255, t118, (-2.25)*t238))));
+    P_new[204] = t535;
+    P_new[296] = t535;
+    P_new[205] = t536;
+    P_new[320] = t536;
+    P_new[206] = t537;
+    P_new[344] = t537;
+    P_new[207] = t538;
+    P_new[368] = t538;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t539_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
-    const derive_vd v_t539_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t95, v_t539_0);
-    const derive_vd v_t539_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t119, v_t539_1);
-    const derive_vd v_t539_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t143, v_t539_2);
-    const derive_vd v_t539_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t167, v_t539_3);
-    const derive_vd v_t539 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t191, v_t539_4);
+    const derive_vd v_t539_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t239);
+    const derive_vd v_t539_1 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t119, v_t539_0);
+    const derive_vd v_t539_2 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t143, v_t539_1);
+    const derive_vd v_t539_3 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t167, v_t539_2);
+    const derive_vd v_t539 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t191, v_t539_3);
     #else
-    const double t539 = DERIVE_FMA(t327, t191, DERIVE_FMA(t303, t167, DERIVE_FMA(t279, t143, DERIVE_FMA(t255, t119, DERIVE_FMA(t231, t95, DERIVE_FMA(t207, P[184], P[208]))))));
-    const double t540 = DERIVE_FMA(t327, t192, DERIVE_FMA(t303, t168, DERIVE_FMA(t279, t144, DERIVE_FMA(t255, t120, DERIVE_FMA(t231, t96, DERIVE_FMA(t207, P[185], P[209]))))));
-    const double t541 = DERIVE_FMA(t327, t193, DERIVE_FMA(t303, t169, DERIVE_FMA(t279, t145, DERIVE_FMA(t255, t121, DERIVE_FMA(t231, t97, DERIVE_FMA(t207, P[186], P[210]))))));
-    const double t542 = DERIVE_FMA(t327, t194, DERIVE_FMA(t303, t170, DERIVE_FMA(t279, t146, DERIVE_FMA(t255, t122, DERIVE_FMA(t231, t98, DERIVE_FMA(t207, P[187], P[211]))))));
+    const double t539 = DERIVE_FMA(t327, t191, DERIVE_FMA(t303, t167, DERIVE_FMA(t279, t143, DERIVE_FMA(t255, t119, (-2.25)*t239))));
+    const double t540 = DERIVE_FMA(t327, t192, DERIVE_FMA(t303, t168, DERIVE_FMA(t279, t144, DERIVE_FMA(t255, t120, (-2.25)*t240))));
+    const double t541 = DERIVE_FMA(t327, t193, DERIVE_FMA(t303, t169, DERIVE_FMA(t279, t145, DERIVE_FMA(t255, t121, (-2.25)*t241))));
+    const double t542 = DERIVE_FMA(t327, t194, DERIVE_FMA(t303, t170, DERIVE_FMA(t279, t146, DERIVE_FMA(t255, t122, (-2.25)*t242))));
+    P_new[208] = t539;
+    P_new[392] = t539;
+    P_new[209] = t540;
+    P_new[416] = t540;
+    P_new[210] = t541;
+    P_new[440] = t541;
+    P_new[211] = t542;
+    P_new[464] = t542;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t543_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
-    const derive_vd v_t543_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t99, v_t543_0);
-    const derive_vd v_t543_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t123, v_t543_1);
-    const derive_vd v_t543_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t147, v_t543_2);
-    const derive_vd v_t543_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t171, v_t543_3);
-    const derive_vd v_t543 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t195, v_t543_4);
+    const derive_vd v_t543_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t243);
+    const derive_vd v_t543_1 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t123, v_t543_0);
+    const derive_vd v_t543_2 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t147, v_t543_1);
+    const derive_vd v_t543_3 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t171, v_t543_2);
+    const derive_vd v_t543 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t195, v_t543_3);
     #else
-    const double t543 = DERIVE_FMA(t327, t195, DERIVE_FMA(t303, t171, DERIVE_FMA(t279, t147, DERIVE_FMA(t255, t123, DERIVE_FMA(t231, t99, DERIVE_FMA(t207, P[188], P[212]))))));
-    const double t544 = DERIVE_FMA(t327, t196, DERIVE_FMA(t303, t172, DERIVE_FMA(t279, t148, DERIVE_FMA(t255, t124, DERIVE_FMA(t231, t100, DERIVE_FMA(t207, P[189], P[213]))))));
-    const double t545 = DERIVE_FMA(t327, t197, DERIVE_FMA(t303, t173, DERIVE_FMA(t279, t149, DERIVE_FMA(t255, t125, DERIVE_FMA(t231, t101, DERIVE_FMA(t207, P[190], P[214]))))));
-    const double t546 = DERIVE_FMA(t327, t198, DERIVE_FMA(t303, t174, DERIVE_FMA(t279, t150, DERIVE_FMA(t255, t126, DERIVE_FMA(t231, t102, DERIVE_FMA(t207, P[191], P[215]))))));
+    const double t543 = DERIVE_FMA(t327, t195, DERIVE_FMA(t303, t171, DERIVE_FMA(t279, t147, DERIVE_FMA(t255, t123, (-2.25)*t243))));
+    const double t544 = DERIVE_FMA(t327, t196, DERIVE_FMA(t303, t172, DERIVE_FMA(t279, t148, DERIVE_FMA(t255, t124, (-2.25)*t244))));
+    const double t545 = DERIVE_FMA(t327, t197, DERIVE_FMA(t303, t173, DERIVE_FMA(t279, t149, DERIVE_FMA(t255, t125, (-2.25)*t245))));
+    const double t546 = DERIVE_FMA(t327, t198, DERIVE_FMA(t303, t174, DERIVE_FMA(t279, t150, DERIVE_FMA(t255, t126, (-2.25)*t246))));
+    P_new[212] = t543;
+    P_new[488] = t543;
+    P_new[213] = t544;
+    P_new[512] = t544;
+    P_new[214] = t545;
+    P_new[536] = t545;
+    P_new[215] = t546;
+    P_new[560] = t546;
     #endif
-    const double t547 = DERIVE_FMA(t232, t88, DERIVE_FMA(t184, t328, DERIVE_FMA(t160, t304, DERIVE_FMA(t136, t280, DERIVE_FMA(t112, t256, DERIVE_FMA(P[177], t208, P[225]))))));
-    const double t548 = DERIVE_FMA(t232, t89, DERIVE_FMA(t185, t328, DERIVE_FMA(t161, t304, DERIVE_FMA(t137, t280, DERIVE_FMA(t113, t256, DERIVE_FMA(P[178], t208, P[226]))))));
-    const double t549 = DERIVE_FMA(t232, t90, DERIVE_FMA(t186, t328, DERIVE_FMA(t162, t304, DERIVE_FMA(t138, t280, DERIVE_FMA(t114, t256, DERIVE_FMA(P[179], t208, P[227]))))));
+    const double t547 = DERIVE_FMA(t184, t328, DERIVE_FMA(t160, t304, DERIVE_FMA(t136, t280, (-9.0)*t256)));
+    const double t548 = DERIVE_FMA(t185, t328, DERIVE_FMA(t161, t304, DERIVE_FMA(t137, t280, (-9.0)*t257)));
+    const double t549 = DERIVE_FMA(t186, t328, DERIVE_FMA(t162, t304, DERIVE_FMA(t138, t280, (-9.0)*t258)));
     #if DERIVE_VECTOR
-    const derive_vd v_t550_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
-    const derive_vd v_t550_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t91, v_t550_0);
-    const derive_vd v_t550_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t115, v_t550_1);
-    const derive_vd v_t550_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t139, v_t550_2);
-    const derive_vd v_t550_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t163, v_t550_3);
-    const derive_vd v_t550 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t187, v_t550_4);
+    const derive_vd v_t550_0 = (((derive_vd){(-9.0), (-9.0), (-9.0), (-9.0)}) * v_t259);
+    const derive_vd v_t550_1 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t139, v_t550_0);
+    const derive_vd v_t550_2 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t163, v_t550_1);
+    const derive_vd v_t550 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t187, v_t550_2);
     #else
-    const double t550 = DERIVE_FMA(t328, t187, DERIVE_FMA(t304, t163, DERIVE_FMA(t280, t139, DERIVE_FMA(t256, t115, DERIVE_FMA(t232, t91, DERIVE_FMA(t208, P[180], P[228]))))));
-    const double t551 = DERIVE_FMA(t328, t188, DERIVE_FMA(t304, t164, DERIVE_FMA(t280, t140, DERIVE_FMA(t256, t116, DERIVE_FMA(t232, t92, DERIVE_FMA(t208, P[181], P[229]))))));
-    const double t552 = DERIVE_FMA(t328, t189, DERIVE_FMA(t304, t165, DERIVE_FMA(t280, t141, DERIVE_FMA(t256, t117, DERIVE_FMA(t232, t93, DERIVE_FMA(t208, P[182], P[230]))))));
-    const double t553 = DERIVE_FMA(t328, t190, DERIVE_FMA(t304, t166, DERIVE_FMA(t280, t142, DERIVE_FMA(t256, t118, DERIVE_FMA(t232, t94, DERIVE_FMA(t208, P[183], P[231]))))));
+    const double t550 = DERIVE_FMA(t328, t187, DERIVE_FMA(t304, t163, DERIVE_FMA(t280, t139, (-9.0)*t259)));
+    const double t551 = DERIVE_FMA(t328, t188, DERIVE_FMA(t304, t164, DERIVE_FMA(t280, t140, (-9.0)*t260)));
+    const double t552 = DERIVE_FMA(t328, t189, DERIVE_FMA(t304, t165, DERIVE_FMA(t280, t141, (-9.0)*t261)));
+    const double t553 = DERIVE_FMA(t328, t190, DERIVE_FMA(t304, t166, DERIVE_FMA(t280, t142, (-9.0)*t262)));
+    P_new[228] = t550;
+    P_new[297] = t550;
+    P_new[229] = t551;
+    P_new[321] = t551;
+    P_new[230] = t552;
+    P_new[345] = t552;
+    P_new[231] = t553;
+    P_new[369] = t553;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t554_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
-    const derive_vd v_t554_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t95, v_t554_0);
-    const derive_vd v_t554_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t119, v_t554_1);
-    const derive_vd v_t554_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t143, v_t554_2);
-    const derive_vd v_t554_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t167, v_t554_3);
-    const derive_vd v_t554 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t191, v_t554_4);
+    const derive_vd v_t554_0 = (((derive_vd){(-9.0), (-9.0), (-9.0), (-9.0)}) * v_t263);
+    const derive_vd v_t554_1 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t143, v_t554_0);
+    const derive_vd v_t554_2 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t167, v_t554_1);
+    const derive_vd v_t554 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t191, v_t554_2);
     #else
-    const double t554 = DERIVE_FMA(t328, t191, DERIVE_FMA(t304, t167, DERIVE_FMA(t280, t143, DERIVE_FMA(t256, t119, DERIVE_FMA(t232, t95, DERIVE_FMA(t208, P[184], P[232]))))));
-    const double t555 = DERIVE_FMA(t328, t192, DERIVE_FMA(t304, t168, DERIVE_FMA(t280, t144, DERIVE_FMA(t256, t120, DERIVE_FMA(t232, t96, DERIVE_FMA(t208, P[185], P[233]))))));
-    const double t556 = DERIVE_FMA(t328, t193, DERIVE_FMA(t304, t169, DERIVE_FMA(t280, t145, DERIVE_FMA(t256, t121, DERIVE_FMA(t232, t97, DERIVE_FMA(t208, P[186], P[234]))))));
-    const double t557 = DERIVE_FMA(t328, t194, DERIVE_FMA(t304, t170, DERIVE_FMA(t280, t146, DERIVE_FMA(t256, t122, DERIVE_FMA(t232, t98, DERIVE_FMA(t208, P[187], P[235]))))));
+    const double t554 = DERIVE_FMA(t328, t191, DERIVE_FMA(t304, t167, DERIVE_FMA(t280, t143, (-9.0)*t263)));
+    const double t555 = DERIVE_FMA(t328, t192, DERIVE_FMA(t304, t168, DERIVE_FMA(t280, t144, (-9.0)*t264)));
+    const double t556 = DERIVE_FMA(t328, t193, DERIVE_FMA(t304, t169, DERIVE_FMA(t280, t145, (-9.0)*t265)));
+    const double t557 = DERIVE_FMA(t328, t194, DERIVE_FMA(t304, t170, DERIVE_FMA(t280, t146, (-9.0)*t266)));
+    P_new[232] = t554;
+    P_new[393] = t554;
+    P_new[233] = t555;
+    P_new[417] = t555;
+    P_new[234] = t556;
+    P_new[441] = t556;
+    P_new[235] = t557;
+    P_new[465] = t557;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t558_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t558_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t99, v_t558_0);
-    const derive_vd v_t558_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t123, v_t558_1);
-    const derive_vd v_t558_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t147, v_t558_2);
-    const derive_vd v_t558_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t171, v_t558_3);
-    const derive_vd v_t558 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t195, v_t558_4);
+    const derive_vd v_t558_0 = (((derive_vd){(-9.0), (-9.0), (-9.0), (-9.0)}) * v_t267);
+    const derive_vd v_t558_1 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t147, v_t558_0);
+    const derive_vd v_t558_2 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t171, v_t558_1);
+    const derive_vd v_t558 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t195, v_t558_2);
     #else
-    const double t558 = DERIVE_FMA(t328, t195, DERIVE_FMA(t304, t171, DERIVE_FMA(t280, t147, DERIVE_FMA(t256, t123, DERIVE_FMA(t232, t99, DERIVE_FMA(t208, P[188], P[236]))))));
-    const double t559 = DERIVE_FMA(t328, t196, DERIVE_FMA(t304, t172, DERIVE_FMA(t280, t148, DERIVE_FMA(t256, t124, DERIVE_FMA(t232, t100, DERIVE_FMA(t208, P[189], P[237]))))));
-    const double t560 = DERIVE_FMA(t328, t197, DERIVE_FMA(t304, t173, DERIVE_FMA(t280, t149, DERIVE_FMA(t256, t125, DERIVE_FMA(t232, t101, DERIVE_FMA(t208, P[190], P[238]))))));
-    const double t561 = DERIVE_FMA(t328, t198, DERIVE_FMA(t304, t174, DERIVE_FMA(t280, t150, DERIVE_FMA(t256, t126, DERIVE_FMA(t232, t102, DERIVE_FMA(t208, P[191], P[239]))))));
+    const double t558 = DERIVE_FMA(t328, t195, DERIVE_FMA(t304, t171, DERIVE_FMA(t280, t147, (-9.0)*t267)));
+    const double t559 = DERIVE_FMA(t328, t196, DERIVE_FMA(t304, t172, DERIVE_FMA(t280, t148, (-9.0)*t268)));
+    const double t560 = DERIVE_FMA(t328, t197, DERIVE_FMA(t304, t173, DERIVE_FMA(t280, t149, (-9.0)*t269)));
+    const double t561 = DERIVE_FMA(t328, t198, DERIVE_FMA(t304, t174, DERIVE_FMA(t280, t150, (-9.0)*t270)));
+    P_new[236] = t558;
+    P_new[489] = t558;
+    P_new[237] = t559;
+    P_new[513] = t559;
+    P_new[238] = t560;
+    P_new[537] = t560;
+    P_new[239] = t561;
+    P_new[561] = t561;
     #endif
     const double t562 = DERIVE_FMA(t233, t89, DERIVE_FMA(t185, t329, DERIVE_FMA(t161, t305, DERIVE_FMA(t137, t281, DERIVE_FMA(t113, t257, DERIVE_FMA(P[178], t209, P[250]))))));
     const double t563 = DERIVE_FMA(t233, t90, DERIVE_FMA(t186, t329, DERIVE_FMA(t162, t305, DERIVE_FMA(t138, t281, DERIVE_FMA(t114, t257, DERIVE_FMA(P[179], t209, P[251]))))));
@@ -3985,6 +4254,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t565 = DERIVE_FMA(t329, t188, DERIVE_FMA(t305, t164, DERIVE_FMA(t281, t140, DERIVE_FMA(t257, t116, DERIVE_FMA(t233, t92, DERIVE_FMA(t209, P[181], P[253]))))));
     const double t566 = DERIVE_FMA(t329, t189, DERIVE_FMA(t305, t165, DERIVE_FMA(t281, t141, DERIVE_FMA(t257, t117, DERIVE_FMA(t233, t93, DERIVE_FMA(t209, P[182], P[254]))))));
     const double t567 = DERIVE_FMA(t329, t190, DERIVE_FMA(t305, t166, DERIVE_FMA(t281, t142, DERIVE_FMA(t257, t118, DERIVE_FMA(t233, t94, DERIVE_FMA(t209, P[183], P[255]))))));
+    P_new[252] = t564;
+    P_new[298] = t564;
+    P_new[253] = t565;
+    P_new[322] = t565;
+    P_new[254] = t566;
+    P_new[346] = t566;
+    P_new[255] = t567;
+    P_new[370] = t567;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t568_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[256], P[257], P[258], P[259]}));
@@ -3998,6 +4275,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t569 = DERIVE_FMA(t329, t192, DERIVE_FMA(t305, t168, DERIVE_FMA(t281, t144, DERIVE_FMA(t257, t120, DERIVE_FMA(t233, t96, DERIVE_FMA(t209, P[185], P[257]))))));
     const double t570 = DERIVE_FMA(t329, t193, DERIVE_FMA(t305, t169, DERIVE_FMA(t281, t145, DERIVE_FMA(t257, t121, DERIVE_FMA(t233, t97, DERIVE_FMA(t209, P[186], P[258]))))));
     const double t571 = DERIVE_FMA(t329, t194, DERIVE_FMA(t305, t170, DERIVE_FMA(t281, t146, DERIVE_FMA(t257, t122, DERIVE_FMA(t233, t98, DERIVE_FMA(t209, P[187], P[259]))))));
+    P_new[256] = t568;
+    P_new[394] = t568;
+    P_new[257] = t569;
+    P_new[418] = t569;
+    P_new[258] = t570;
+    P_new[442] = t570;
+    P_new[259] = t571;
+    P_new[466] = t571;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t572_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[260], P[261], P[262], P[263]}));
@@ -4011,6 +4296,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t573 = DERIVE_FMA(t329, t196, DERIVE_FMA(t305, t172, DERIVE_FMA(t281, t148, DERIVE_FMA(t257, t124, DERIVE_FMA(t233, t100, DERIVE_FMA(t209, P[189], P[261]))))));
     const double t574 = DERIVE_FMA(t329, t197, DERIVE_FMA(t305, t173, DERIVE_FMA(t281, t149, DERIVE_FMA(t257, t125, DERIVE_FMA(t233, t101, DERIVE_FMA(t209, P[190], P[262]))))));
     const double t575 = DERIVE_FMA(t329, t198, DERIVE_FMA(t305, t174, DERIVE_FMA(t281, t150, DERIVE_FMA(t257, t126, DERIVE_FMA(t233, t102, DERIVE_FMA(t209, P[191], P[263]))))));
+    P_new[260] = t572;
+    P_new[490] = t572;
+    P_new[261] = t573;
+    P_new[514] = t573;
+    P_new[262] = t574;
+    P_new[538] = t574;
+    P_new[263] = t575;
+    P_new[562] = t575;
     #endif
     const double t576 = DERIVE_FMA(t234, t90, DERIVE_FMA(t186, t330, DERIVE_FMA(t162, t306, DERIVE_FMA(t138, t282, DERIVE_FMA(t114, t258, DERIVE_FMA(P[179], t210, P[275]))))));
     #if DERIVE_VECTOR
@@ -4041,6 +4334,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t578 = DERIVE_FMA(t330, t188, DERIVE_FMA(t306, t164, DERIVE_FMA(t282, t140, DERIVE_FMA(t258, t116, DERIVE_FMA(t234, t92, DERIVE_FMA(t210, P[181], P[277]))))));
     const double t579 = DERIVE_FMA(t330, t189, DERIVE_FMA(t306, t165, DERIVE_FMA(t282, t141, DERIVE_FMA(t258, t117, DERIVE_FMA(t234, t93, DERIVE_FMA(t210, P[182], P[278]))))));
     const double t580 = DERIVE_FMA(t330, t190, DERIVE_FMA(t306, t166, DERIVE_FMA(t282, t142, DERIVE_FMA(t258, t118, DERIVE_FMA(t234, t94, DERIVE_FMA(t210, P[183], P[279]))))));
+    P_new[276] = t577;
+    P_new[299] = t577;
+    P_new[277] = t578;
+    P_new[323] = t578;
+    P_new[278] = t579;
+    P_new[347] = t579;
+    P_new[279] = t580;
+    P_new[371] = t580;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t581_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[280], P[281], P[282], P[283]}));
@@ -4070,6 +4371,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t582 = DERIVE_FMA(t330, t192, DERIVE_FMA(t306, t168, DERIVE_FMA(t282, t144, DERIVE_FMA(t258, t120, DERIVE_FMA(t234, t96, DERIVE_FMA(t210, P[185], P[281]))))));
     const double t583 = DERIVE_FMA(t330, t193, DERIVE_FMA(t306, t169, DERIVE_FMA(t282, t145, DERIVE_FMA(t258, t121, DERIVE_FMA(t234, t97, DERIVE_FMA(t210, P[186], P[282]))))));
     const double t584 = DERIVE_FMA(t330, t194, DERIVE_FMA(t306, t170, DERIVE_FMA(t282, t146, DERIVE_FMA(t258, t122, DERIVE_FMA(t234, t98, DERIVE_FMA(t210, P[187], P[283]))))));
+    P_new[280] = t581;
+    P_new[395] = t581;
+    P_new[281] = t582;
+    P_new[419] = t582;
+    P_new[282] = t583;
+    P_new[443] = t583;
+    P_new[283] = t584;
+    P_new[467] = t584;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t585_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[284], P[285], P[286], P[287]}));
@@ -4099,6 +4408,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t586 = DERIVE_FMA(t330, t196, DERIVE_FMA(t306, t172, DERIVE_FMA(t282, t148, DERIVE_FMA(t258, t124, DERIVE_FMA(t234, t100, DERIVE_FMA(t210, P[189], P[285]))))));
     const double t587 = DERIVE_FMA(t330, t197, DERIVE_FMA(t306, t173, DERIVE_FMA(t282, t149, DERIVE_FMA(t258, t125, DERIVE_FMA(t234, t101, DERIVE_FMA(t210, P[190], P[286]))))));
     const double t588 = DERIVE_FMA(t330, t198, DERIVE_FMA(t306, t174, DERIVE_FMA(t282, t150, DERIVE_FMA(t258, t126, DERIVE_FMA(t234, t102, DERIVE_FMA(t210, P[191], P[287]))))));
+    P_new[284] = t585;
+    P_new[491] = t585;
+    P_new[285] = t586;
+    P_new[515] = t586;
+    P_new[286] = t587;
+    P_new[539] = t587;
+    P_new[287] = t588;
+    P_new[563] = t588;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t589_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[300], P[301], P[302], P[303]}));
@@ -4116,6 +4433,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t590 = DERIVE_FMA(t331, t188, DERIVE_FMA(t307, t164, DERIVE_FMA(t283, t140, DERIVE_FMA(t259, t116, DERIVE_FMA(t235, t92, DERIVE_FMA(t211, P[181], P[301]))))));
     const double t591 = DERIVE_FMA(t331, t189, DERIVE_FMA(t307, t165, DERIVE_FMA(t283, t141, DERIVE_FMA(t259, t117, DERIVE_FMA(t235, t93, DERIVE_FMA(t211, P[182], P[302]))))));
     const double t592 = DERIVE_FMA(t331, t190, DERIVE_FMA(t307, t166, DERIVE_FMA(t283, t142, DERIVE_FMA(t259, t118, DERIVE_FMA(t235, t94, DERIVE_FMA(t211, P[183], P[303]))))));
+    P_new[300] = t589;
+    P_new[301] = t590;
+    P_new[324] = t590;
+    P_new[302] = t591;
+    P_new[348] = t591;
+    P_new[303] = t592;
+    P_new[372] = t592;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t593_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[304], P[305], P[306], P[307]}));
@@ -4129,6 +4453,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t594 = DERIVE_FMA(t331, t192, DERIVE_FMA(t307, t168, DERIVE_FMA(t283, t144, DERIVE_FMA(t259, t120, DERIVE_FMA(t235, t96, DERIVE_FMA(t211, P[185], P[305]))))));
     const double t595 = DERIVE_FMA(t331, t193, DERIVE_FMA(t307, t169, DERIVE_FMA(t283, t145, DERIVE_FMA(t259, t121, DERIVE_FMA(t235, t97, DERIVE_FMA(t211, P[186], P[306]))))));
     const double t596 = DERIVE_FMA(t331, t194, DERIVE_FMA(t307, t170, DERIVE_FMA(t283, t146, DERIVE_FMA(t259, t122, DERIVE_FMA(t235, t98, DERIVE_FMA(t211, P[187], P[307]))))));
+    P_new[304] = t593;
+    P_new[396] = t593;
+    P_new[305] = t594;
+    P_new[420] = t594;
+    P_new[306] = t595;
+    P_new[444] = t595;
+    P_new[307] = t596;
+    P_new[468] = t596;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t597_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[308], P[309], P[310], P[311]}));
@@ -4142,6 +4474,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t598 = DERIVE_FMA(t331, t196, DERIVE_FMA(t307, t172, DERIVE_FMA(t283, t148, DERIVE_FMA(t259, t124, DERIVE_FMA(t235, t100, DERIVE_FMA(t211, P[189], P[309]))))));
     const double t599 = DERIVE_FMA(t331, t197, DERIVE_FMA(t307, t173, DERIVE_FMA(t283, t149, DERIVE_FMA(t259, t125, DERIVE_FMA(t235, t101, DERIVE_FMA(t211, P[190], P[310]))))));
     const double t600 = DERIVE_FMA(t331, t198, DERIVE_FMA(t307, t174, DERIVE_FMA(t283, t150, DERIVE_FMA(t259, t126, DERIVE_FMA(t235, t102, DERIVE_FMA(t211, P[191], P[311]))))));
+    P_new[308] = t597;
+    P_new[492] = t597;
+    P_new[309] = t598;
+    P_new[516] = t598;
+    P_new[310] = t599;
+    P_new[540] = t599;
+    P_new[311] = t600;
+    P_new[564] = t600;
     #endif
     const double t601 = DERIVE_FMA(t236, t92, DERIVE_FMA(t188, t332, DERIVE_FMA(t164, t308, DERIVE_FMA(t140, t284, DERIVE_FMA(t116, t260, DERIVE_FMA(P[181], t212, P[325]))))));
     const double t602 = DERIVE_FMA(t236, t93, DERIVE_FMA(t189, t332, DERIVE_FMA(t165, t308, DERIVE_FMA(t141, t284, DERIVE_FMA(t117, t260, DERIVE_FMA(P[182], t212, P[326]))))));
@@ -4158,6 +4498,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t605 = DERIVE_FMA(t332, t192, DERIVE_FMA(t308, t168, DERIVE_FMA(t284, t144, DERIVE_FMA(t260, t120, DERIVE_FMA(t236, t96, DERIVE_FMA(t212, P[185], P[329]))))));
     const double t606 = DERIVE_FMA(t332, t193, DERIVE_FMA(t308, t169, DERIVE_FMA(t284, t145, DERIVE_FMA(t260, t121, DERIVE_FMA(t236, t97, DERIVE_FMA(t212, P[186], P[330]))))));
     const double t607 = DERIVE_FMA(t332, t194, DERIVE_FMA(t308, t170, DERIVE_FMA(t284, t146, DERIVE_FMA(t260, t122, DERIVE_FMA(t236, t98, DERIVE_FMA(t212, P[187], P[331]))))));
+    P_new[328] = t604;
+    P_new[397] = t604;
+    P_new[329] = t605;
+    P_new[421] = t605;
+    P_new[330] = t606;
+    P_new[445] = t606;
+    P_new[331] = t607;
+    P_new[469] = t607;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t608_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[332], P[333], P[334], P[335]}));
@@ -4171,6 +4519,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t609 = DERIVE_FMA(t332, t196, DERIVE_FMA(t308, t172, DERIVE_FMA(t284, t148, DERIVE_FMA(t260, t124, DERIVE_FMA(t236, t100, DERIVE_FMA(t212, P[189], P[333]))))));
     const double t610 = DERIVE_FMA(t332, t197, DERIVE_FMA(t308, t173, DERIVE_FMA(t284, t149, DERIVE_FMA(t260, t125, DERIVE_FMA(t236, t101, DERIVE_FMA(t212, P[190], P[334]))))));
     const double t611 = DERIVE_FMA(t332, t198, DERIVE_FMA(t308, t174, DERIVE_FMA(t284, t150, DERIVE_FMA(t260, t126, DERIVE_FMA(t236, t102, DERIVE_FMA(t212, P[191], P[335]))))));
+    P_new[332] = t608;
+    P_new[493] = t608;
+    P_new[333] = t609;
+    P_new[517] = t609;
+    P_new[334] = t610;
+    P_new[541] = t610;
+    P_new[335] = t611;
+    P_new[565] = t611;
     #endif
     const double t612 = DERIVE_FMA(t237, t93, DERIVE_FMA(t189, t333, DERIVE_FMA(t165, t309, DERIVE_FMA(t141, t285, DERIVE_FMA(t117, t261, DERIVE_FMA(P[182], t213, P[350]))))));
     const double t613 = DERIVE_FMA(t237, t94, DERIVE_FMA(t190, t333, DERIVE_FMA(t166, t309, DERIVE_FMA(t142, t285, DERIVE_FMA(t118, t261, DERIVE_FMA(P[183], t213, P[351]))))));
@@ -4186,6 +4542,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t615 = DERIVE_FMA(t333, t192, DERIVE_FMA(t309, t168, DERIVE_FMA(t285, t144, DERIVE_FMA(t261, t120, DERIVE_FMA(t237, t96, DERIVE_FMA(t213, P[185], P[353]))))));
     const double t616 = DERIVE_FMA(t333, t193, DERIVE_FMA(t309, t169, DERIVE_FMA(t285, t145, DERIVE_FMA(t261, t121, DERIVE_FMA(t237, t97, DERIVE_FMA(t213, P[186], P[354]))))));
     const double t617 = DERIVE_FMA(t333, t194, DERIVE_FMA(t309, t170, DERIVE_FMA(t285, t146, DERIVE_FMA(t261, t122, DERIVE_FMA(t237, t98, DERIVE_FMA(t213, P[187], P[355]))))));
+    P_new[352] = t614;
+    P_new[398] = t614;
+    P_new[353] = t615;
+    P_new[422] = t615;
+    P_new[354] = t616;
+    P_new[446] = t616;
+    P_new[355] = t617;
+    P_new[470] = t617;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t618_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[356], P[357], P[358], P[359]}));
@@ -4199,6 +4563,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t619 = DERIVE_FMA(t333, t196, DERIVE_FMA(t309, t172, DERIVE_FMA(t285, t148, DERIVE_FMA(t261, t124, DERIVE_FMA(t237, t100, DERIVE_FMA(t213, P[189], P[357]))))));
     const double t620 = DERIVE_FMA(t333, t197, DERIVE_FMA(t309, t173, DERIVE_FMA(t285, t149, DERIVE_FMA(t261, t125, DERIVE_FMA(t237, t101, DERIVE_FMA(t213, P[190], P[358]))))));
     const double t621 = DERIVE_FMA(t333, t198, DERIVE_FMA(t309, t174, DERIVE_FMA(t285, t150, DERIVE_FMA(t261, t126, DERIVE_FMA(t237, t102, DERIVE_FMA(t213, P[191], P[359]))))));
+    P_new[356] = t618;
+    P_new[494] = t618;
+    P_new[357] = t619;
+    P_new[518] = t619;
+    P_new[358] = t620;
+    P_new[542] = t620;
+    P_new[359] = t621;
+    P_new[566] = t621;
     #endif
     const double t622 = DERIVE_FMA(t238, t94, DERIVE_FMA(t190, t334, DERIVE_FMA(t166, t310, DERIVE_FMA(t142, t286, DERIVE_FMA(t118, t262, DERIVE_FMA(P[183], t214, P[375]))))));
     #if DERIVE_VECTOR
@@ -4229,6 +4601,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t624 = DERIVE_FMA(t334, t192, DERIVE_FMA(t310, t168, DERIVE_FMA(t286, t144, DERIVE_FMA(t262, t120, DERIVE_FMA(t238, t96, DERIVE_FMA(t214, P[185], P[377]))))));
     const double t625 = DERIVE_FMA(t334, t193, DERIVE_FMA(t310, t169, DERIVE_FMA(t286, t145, DERIVE_FMA(t262, t121, DERIVE_FMA(t238, t97, DERIVE_FMA(t214, P[186], P[378]))))));
     const double t626 = DERIVE_FMA(t334, t194, DERIVE_FMA(t310, t170, DERIVE_FMA(t286, t146, DERIVE_FMA(t262, t122, DERIVE_FMA(t238, t98, DERIVE_FMA(t214, P[187], P[379]))))));
+    P_new[376] = t623;
+    P_new[399] = t623;
+    P_new[377] = t624;
+    P_new[423] = t624;
+    P_new[378] = t625;
+    P_new[447] = t625;
+    P_new[379] = t626;
+    P_new[471] = t626;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t627_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[380], P[381], P[382], P[383]}));
@@ -4258,6 +4638,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t628 = DERIVE_FMA(t334, t196, DERIVE_FMA(t310, t172, DERIVE_FMA(t286, t148, DERIVE_FMA(t262, t124, DERIVE_FMA(t238, t100, DERIVE_FMA(t214, P[189], P[381]))))));
     const double t629 = DERIVE_FMA(t334, t197, DERIVE_FMA(t310, t173, DERIVE_FMA(t286, t149, DERIVE_FMA(t262, t125, DERIVE_FMA(t238, t101, DERIVE_FMA(t214, P[190], P[382]))))));
     const double t630 = DERIVE_FMA(t334, t198, DERIVE_FMA(t310, t174, DERIVE_FMA(t286, t150, DERIVE_FMA(t262, t126, DERIVE_FMA(t238, t102, DERIVE_FMA(t214, P[191], P[383]))))));
+    P_new[380] = t627;
+    P_new[495] = t627;
+    P_new[381] = t628;
+    P_new[519] = t628;
+    P_new[382] = t629;
+    P_new[543] = t629;
+    P_new[383] = t630;
+    P_new[567] = t630;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t631_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[400], P[401], P[402], P[403]}));
@@ -4275,6 +4663,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t632 = DERIVE_FMA(t335, t192, DERIVE_FMA(t311, t168, DERIVE_FMA(t287, t144, DERIVE_FMA(t263, t120, DERIVE_FMA(t239, t96, DERIVE_FMA(t215, P[185], P[401]))))));
     const double t633 = DERIVE_FMA(t335, t193, DERIVE_FMA(t311, t169, DERIVE_FMA(t287, t145, DERIVE_FMA(t263, t121, DERIVE_FMA(t239, t97, DERIVE_FMA(t215, P[186], P[402]))))));
     const double t634 = DERIVE_FMA(t335, t194, DERIVE_FMA(t311, t170, DERIVE_FMA(t287, t146, DERIVE_FMA(t263, t122, DERIVE_FMA(t239, t98, DERIVE_FMA(t215, P[187], P[403]))))));
+    P_new[400] = t631;
+    P_new[401] = t632;
+    P_new[424] = t632;
+    P_new[402] = t633;
+    P_new[448] = t633;
+    P_new[403] = t634;
+    P_new[472] = t634;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t635_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[404], P[405], P[406], P[407]}));
@@ -4288,6 +4683,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t636 = DERIVE_FMA(t335, t196, DERIVE_FMA(t311, t172, DERIVE_FMA(t287, t148, DERIVE_FMA(t263, t124, DERIVE_FMA(t239, t100, DERIVE_FMA(t215, P[189], P[405]))))));
     const double t637 = DERIVE_FMA(t335, t197, DERIVE_FMA(t311, t173, DERIVE_FMA(t287, t149, DERIVE_FMA(t263, t125, DERIVE_FMA(t239, t101, DERIVE_FMA(t215, P[190], P[406]))))));
     const double t638 = DERIVE_FMA(t335, t198, DERIVE_FMA(t311, t174, DERIVE_FMA(t287, t150, DERIVE_FMA(t263, t126, DERIVE_FMA(t239, t102, DERIVE_FMA(t215, P[191], P[407]))))));
+    P_new[404] = t635;
+    P_new[496] = t635;
+    P_new[405] = t636;
+    P_new[520] = t636;
+    P_new[406] = t637;
+    P_new[544] = t637;
+    P_new[407] = t638;
+    P_new[568] = t638;
     #endif
     const double t639 = DERIVE_FMA(t240, t96, DERIVE_FMA(t192, t336, DERIVE_FMA(t168, t312, DERIVE_FMA(t144, t288, DERIVE_FMA(t120, t264, DERIVE_FMA(P[185], t216, P[425]))))));
     const double t640 = DERIVE_FMA(t240, t97, DERIVE_FMA(t193, t336, DERIVE_FMA(t169, t312, DERIVE_FMA(t145, t288, DERIVE_FMA(t121, t264, DERIVE_FMA(P[186], t216, P[426]))))));
@@ -4304,6 +4707,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t643 = DERIVE_FMA(t336, t196, DERIVE_FMA(t312, t172, DERIVE_FMA(t288, t148, DERIVE_FMA(t264, t124, DERIVE_FMA(t240, t100, DERIVE_FMA(t216, P[189], P[429]))))));
     const double t644 = DERIVE_FMA(t336, t197, DERIVE_FMA(t312, t173, DERIVE_FMA(t288, t149, DERIVE_FMA(t264, t125, DERIVE_FMA(t240, t101, DERIVE_FMA(t216, P[190], P[430]))))));
     const double t645 = DERIVE_FMA(t336, t198, DERIVE_FMA(t312, t174, DERIVE_FMA(t288, t150, DERIVE_FMA(t264, t126, DERIVE_FMA(t240, t102, DERIVE_FMA(t216, P[191], P[431]))))));
+    P_new[428] = t642;
+    P_new[497] = t642;
+    P_new[429] = t643;
+    P_new[521] = t643;
+    P_new[430] = t644;
+    P_new[545] = t644;
+    P_new[431] = t645;
+    P_new[569] = t645;
     #endif
     const double t646 = DERIVE_FMA(t241, t97, DERIVE_FMA(t193, t337, DERIVE_FMA(t169, t313, DERIVE_FMA(t145, t289, DERIVE_FMA(t121, t265, DERIVE_FMA(P[186], t217, P[450]))))));
     const double t647 = DERIVE_FMA(t241, t98, DERIVE_FMA(t194, t337, DERIVE_FMA(t170, t313, DERIVE_FMA(t146, t289, DERIVE_FMA(t122, t265, DERIVE_FMA(P[187], t217, P[451]))))));
@@ -4319,6 +4730,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t649 = DERIVE_FMA(t337, t196, DERIVE_FMA(t313, t172, DERIVE_FMA(t289, t148, DERIVE_FMA(t265, t124, DERIVE_FMA(t241, t100, DERIVE_FMA(t217, P[189], P[453]))))));
     const double t650 = DERIVE_FMA(t337, t197, DERIVE_FMA(t313, t173, DERIVE_FMA(t289, t149, DERIVE_FMA(t265, t125, DERIVE_FMA(t241, t101, DERIVE_FMA(t217, P[190], P[454]))))));
     const double t651 = DERIVE_FMA(t337, t198, DERIVE_FMA(t313, t174, DERIVE_FMA(t289, t150, DERIVE_FMA(t265, t126, DERIVE_FMA(t241, t102, DERIVE_FMA(t217, P[191], P[455]))))));
+    P_new[452] = t648;
+    P_new[498] = t648;
+    P_new[453] = t649;
+    P_new[522] = t649;
+    P_new[454] = t650;
+    P_new[546] = t650;
+    P_new[455] = t651;
+    P_new[570] = t651;
     #endif
     const double t652 = DERIVE_FMA(t242, t98, DERIVE_FMA(t194, t338, DERIVE_FMA(t170, t314, DERIVE_FMA(t146, t290, DERIVE_FMA(t122, t266, DERIVE_FMA(P[187], t218, P[475]))))));
     #if DERIVE_VECTOR
@@ -4349,6 +4768,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t654 = DERIVE_FMA(t338, t196, DERIVE_FMA(t314, t172, DERIVE_FMA(t290, t148, DERIVE_FMA(t266, t124, DERIVE_FMA(t242, t100, DERIVE_FMA(t218, P[189], P[477]))))));
     const double t655 = DERIVE_FMA(t338, t197, DERIVE_FMA(t314, t173, DERIVE_FMA(t290, t149, DERIVE_FMA(t266, t125, DERIVE_FMA(t242, t101, DERIVE_FMA(t218, P[190], P[478]))))));
     const double t656 = DERIVE_FMA(t338, t198, DERIVE_FMA(t314, t174, DERIVE_FMA(t290, t150, DERIVE_FMA(t266, t126, DERIVE_FMA(t242, t102, DERIVE_FMA(t218, P[191], P[479]))))));
+    P_new[476] = t653;
+    P_new[499] = t653;
+    P_new[477] = t654;
+    P_new[523] = t654;
+    P_new[478] = t655;
+    P_new[547] = t655;
+    P_new[479] = t656;
+    P_new[571] = t656;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t657_0 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[500], P[501], P[502], P[503]}));
@@ -4366,6 +4793,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t658 = DERIVE_FMA(t339, t196, DERIVE_FMA(t315, t172, DERIVE_FMA(t291, t148, DERIVE_FMA(t267, t124, DERIVE_FMA(t243, t100, DERIVE_FMA(t219, P[189], P[501]))))));
     const double t659 = DERIVE_FMA(t339, t197, DERIVE_FMA(t315, t173, DERIVE_FMA(t291, t149, DERIVE_FMA(t267, t125, DERIVE_FMA(t243, t101, DERIVE_FMA(t219, P[190], P[502]))))));
     const double t660 = DERIVE_FMA(t339, t198, DERIVE_FMA(t315, t174, DERIVE_FMA(t291, t150, DERIVE_FMA(t267, t126, DERIVE_FMA(t243, t102, DERIVE_FMA(t219, P[191], P[503]))))));
+    P_new[500] = t657;
+    P_new[501] = t658;
+    P_new[524] = t658;
+    P_new[502] = t659;
+    P_new[548] = t659;
+    P_new[503] = t660;
+    P_new[572] = t660;
     #endif
     const double t661 = DERIVE_FMA(t196, t340, DERIVE_FMA(t172, t316, DERIVE_FMA(t148, t292, DERIVE_FMA(t124, t268, DERIVE_FMA(t100, t244, DERIVE_FMA(P[189], t220, P[525]))))));
     const double t662 = DERIVE_FMA(t197, t340, DERIVE_FMA(t173, t316, DERIVE_FMA(t149, t292, DERIVE_FMA(t125, t268, DERIVE_FMA(t101, t244, DERIVE_FMA(P[190], t220, P[526]))))));
@@ -4461,599 +4895,57 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     x_new[1] = t670;
     x_new[2] = t671;
     x_new[3] = t672;
-    x_new[4] = t347;
-    x_new[5] = t348;
-    x_new[6] = t349;
-    x_new[7] = t350;
-    x_new[8] = t351;
-    x_new[9] = t352;
-    x_new[10] = t353;
-    x_new[11] = t354;
-    x_new[12] = t355;
-    x_new[13] = t356;
-    x_new[14] = t357;
-    x_new[15] = t358;
-    x_new[16] = t359;
-    x_new[17] = t360;
-    x_new[18] = t361;
-    x_new[19] = t362;
-    x_new[20] = t363;
-    x_new[21] = t364;
-    x_new[22] = t365;
-    x_new[23] = t366;
-    P_new[0] = t367;
-    P_new[1] = t368;
-    P_new[2] = t369;
-    P_new[3] = t370;
-    P_new[4] = t371;
-    P_new[5] = t372;
-    P_new[6] = t373;
-    P_new[7] = t374;
-    P_new[8] = t375;
-    P_new[9] = t376;
-    P_new[10] = t377;
-    P_new[11] = t378;
-    P_new[12] = t379;
-    P_new[13] = t380;
-    P_new[14] = t381;
-    P_new[15] = t382;
-    P_new[16] = t383;
-    P_new[17] = t384;
-    P_new[18] = t385;
-    P_new[19] = t386;
-    P_new[20] = t387;
-    P_new[21] = t388;
-    P_new[22] = t389;
-    P_new[23] = t390;
-    P_new[24] = t368;
     P_new[25] = t391;
     P_new[26] = t392;
     P_new[27] = t393;
-    P_new[28] = t394;
-    P_new[29] = t395;
-    P_new[30] = t396;
-    P_new[31] = t397;
-    P_new[32] = t398;
-    P_new[33] = t399;
-    P_new[34] = t400;
-    P_new[35] = t401;
-    P_new[36] = t402;
-    P_new[37] = t403;
-    P_new[38] = t404;
-    P_new[39] = t405;
-    P_new[40] = t406;
-    P_new[41] = t407;
-    P_new[42] = t408;
-    P_new[43] = t409;
-    P_new[44] = t410;
-    P_new[45] = t411;
-    P_new[46] = t412;
-    P_new[47] = t413;
-    P_new[48] = t369;
     P_new[49] = t392;
     P_new[50] = t414;
     P_new[51] = t415;
-    P_new[52] = t416;
-    P_new[53] = t417;
-    P_new[54] = t418;
-    P_new[55] = t419;
-    P_new[56] = t420;
-    P_new[57] = t421;
-    P_new[58] = t422;
-    P_new[59] = t423;
-    P_new[60] = t424;
-    P_new[61] = t425;
-    P_new[62] = t426;
-    P_new[63] = t427;
-    P_new[64] = t428;
-    P_new[65] = t429;
-    P_new[66] = t430;
-    P_new[67] = t431;
-    P_new[68] = t432;
-    P_new[69] = t433;
-    P_new[70] = t434;
-    P_new[71] = t435;
-    P_new[72] = t370;
     P_new[73] = t393;
     P_new[74] = t415;
     P_new[75] = t436;
-    P_new[76] = t437;
-    P_new[77] = t438;
-    P_new[78] = t439;
-    P_new[79] = t440;
-    P_new[80] = t441;
-    P_new[81] = t442;
-    P_new[82] = t443;
-    P_new[83] = t444;
-    P_new[84] = t445;
-    P_new[85] = t446;
-    P_new[86] = t447;
-    P_new[87] = t448;
-    P_new[88] = t449;
-    P_new[89] = t450;
-    P_new[90] = t451;
-    P_new[91] = t452;
-    P_new[92] = t453;
-    P_new[93] = t454;
-    P_new[94] = t455;
-    P_new[95] = t456;
-    P_new[96] = t371;
-    P_new[97] = t394;
-    P_new[98] = t416;
-    P_new[99] = t437;
-    P_new[100] = t457;
-    P_new[101] = t458;
-    P_new[102] = t459;
-    P_new[103] = t460;
-    P_new[104] = t461;
-    P_new[105] = t462;
-    P_new[106] = t463;
-    P_new[107] = t464;
-    P_new[108] = t465;
-    P_new[109] = t466;
-    P_new[110] = t467;
-    P_new[111] = t468;
-    P_new[112] = t469;
-    P_new[113] = t470;
-    P_new[114] = t471;
-    P_new[115] = t472;
-    P_new[116] = t473;
-    P_new[117] = t474;
-    P_new[118] = t475;
-    P_new[119] = t476;
-    P_new[120] = t372;
-    P_new[121] = t395;
-    P_new[122] = t417;
-    P_new[123] = t438;
-    P_new[124] = t458;
     P_new[125] = t477;
     P_new[126] = t478;
     P_new[127] = t479;
-    P_new[128] = t480;
-    P_new[129] = t481;
-    P_new[130] = t482;
-    P_new[131] = t483;
-    P_new[132] = t484;
-    P_new[133] = t485;
-    P_new[134] = t486;
-    P_new[135] = t487;
-    P_new[136] = t488;
-    P_new[137] = t489;
-    P_new[138] = t490;
-    P_new[139] = t491;
-    P_new[140] = t492;
-    P_new[141] = t493;
-    P_new[142] = t494;
-    P_new[143] = t495;
-    P_new[144] = t373;
-    P_new[145] = t396;
-    P_new[146] = t418;
-    P_new[147] = t439;
-    P_new[148] = t459;
     P_new[149] = t478;
     P_new[150] = t496;
     P_new[151] = t497;
-    P_new[152] = t498;
-    P_new[153] = t499;
-    P_new[154] = t500;
-    P_new[155] = t501;
-    P_new[156] = t502;
-    P_new[157] = t503;
-    P_new[158] = t504;
-    P_new[159] = t505;
-    P_new[160] = t506;
-    P_new[161] = t507;
-    P_new[162] = t508;
-    P_new[163] = t509;
-    P_new[164] = t510;
-    P_new[165] = t511;
-    P_new[166] = t512;
-    P_new[167] = t513;
-    P_new[168] = t374;
-    P_new[169] = t397;
-    P_new[170] = t419;
-    P_new[171] = t440;
-    P_new[172] = t460;
     P_new[173] = t479;
     P_new[174] = t497;
     P_new[175] = t514;
-    P_new[176] = t515;
-    P_new[177] = t516;
-    P_new[178] = t517;
-    P_new[179] = t518;
-    P_new[180] = t519;
-    P_new[181] = t520;
-    P_new[182] = t521;
-    P_new[183] = t522;
-    P_new[184] = t523;
-    P_new[185] = t524;
-    P_new[186] = t525;
-    P_new[187] = t526;
-    P_new[188] = t527;
-    P_new[189] = t528;
-    P_new[190] = t529;
-    P_new[191] = t530;
-    P_new[192] = t375;
-    P_new[193] = t398;
-    P_new[194] = t420;
-    P_new[195] = t441;
-    P_new[196] = t461;
-    P_new[197] = t480;
-    P_new[198] = t498;
-    P_new[199] = t515;
-    P_new[200] = t531;
-    P_new[201] = t532;
-    P_new[202] = t533;
-    P_new[203] = t534;
-    P_new[204] = t535;
-    P_new[205] = t536;
-    P_new[206] = t537;
-    P_new[207] = t538;
-    P_new[208] = t539;
-    P_new[209] = t540;
-    P_new[210] = t541;
-    P_new[211] = t542;
-    P_new[212] = t543;
-    P_new[213] = t544;
-    P_new[214] = t545;
-    P_new[215] = t546;
-    P_new[216] = t376;
-    P_new[217] = t399;
-    P_new[218] = t421;
-    P_new[219] = t442;
-    P_new[220] = t462;
-    P_new[221] = t481;
-    P_new[222] = t499;
-    P_new[223] = t516;
-    P_new[224] = t532;
     P_new[225] = t547;
     P_new[226] = t548;
     P_new[227] = t549;
-    P_new[228] = t550;
-    P_new[229] = t551;
-    P_new[230] = t552;
-    P_new[231] = t553;
-    P_new[232] = t554;
-    P_new[233] = t555;
-    P_new[234] = t556;
-    P_new[235] = t557;
-    P_new[236] = t558;
-    P_new[237] = t559;
-    P_new[238] = t560;
-    P_new[239] = t561;
-    P_new[240] = t377;
-    P_new[241] = t400;
-    P_new[242] = t422;
-    P_new[243] = t443;
-    P_new[244] = t463;
-    P_new[245] = t482;
-    P_new[246] = t500;
-    P_new[247] = t517;
-    P_new[248] = t533;
     P_new[249] = t548;
     P_new[250] = t562;
     P_new[251] = t563;
-    P_new[252] = t564;
-    P_new[253] = t565;
-    P_new[254] = t566;
-    P_new[255] = t567;
-    P_new[256] = t568;
-    P_new[257] = t569;
-    P_new[258] = t570;
-    P_new[259] = t571;
-    P_new[260] = t572;
-    P_new[261] = t573;
-    P_new[262] = t574;
-    P_new[263] = t575;
-    P_new[264] = t378;
-    P_new[265] = t401;
-    P_new[266] = t423;
-    P_new[267] = t444;
-    P_new[268] = t464;
-    P_new[269] = t483;
-    P_new[270] = t501;
-    P_new[271] = t518;
-    P_new[272] = t534;
     P_new[273] = t549;
     P_new[274] = t563;
     P_new[275] = t576;
-    P_new[276] = t577;
-    P_new[277] = t578;
-    P_new[278] = t579;
-    P_new[279] = t580;
-    P_new[280] = t581;
-    P_new[281] = t582;
-    P_new[282] = t583;
-    P_new[283] = t584;
-    P_new[284] = t585;
-    P_new[285] = t586;
-    P_new[286] = t587;
-    P_new[287] = t588;
-    P_new[288] = t379;
-    P_new[289] = t402;
-    P_new[290] = t424;
-    P_new[291] = t445;
-    P_new[292] = t465;
-    P_new[293] = t484;
-    P_new[294] = t502;
-    P_new[295] = t519;
-    P_new[296] = t535;
-    P_new[297] = t550;
-    P_new[298] = t564;
-    P_new[299] = t577;
-    P_new[300] = t589;
-    P_new[301] = t590;
-    P_new[302] = t591;
-    P_new[303] = t592;
-    P_new[304] = t593;
-    P_new[305] = t594;
-    P_new[306] = t595;
-    P_new[307] = t596;
-    P_new[308] = t597;
-    P_new[309] = t598;
-    P_new[310] = t599;
-    P_new[311] = t600;
-    P_new[312] = t380;
-    P_new[313] = t403;
-    P_new[314] = t425;
-    P_new[315] = t446;
-    P_new[316] = t466;
-    P_new[317] = t485;
-    P_new[318] = t503;
-    P_new[319] = t520;
-    P_new[320] = t536;
-    P_new[321] = t551;
-    P_new[322] = t565;
-    P_new[323] = t578;
-    P_new[324] = t590;
     P_new[325] = t601;
     P_new[326] = t602;
     P_new[327] = t603;
-    P_new[328] = t604;
-    P_new[329] = t605;
-    P_new[330] = t606;
-    P_new[331] = t607;
-    P_new[332] = t608;
-    P_new[333] = t609;
-    P_new[334] = t610;
-    P_new[335] = t611;
-    P_new[336] = t381;
-    P_new[337] = t404;
-    P_new[338] = t426;
-    P_new[339] = t447;
-    P_new[340] = t467;
-    P_new[341] = t486;
-    P_new[342] = t504;
-    P_new[343] = t521;
-    P_new[344] = t537;
-    P_new[345] = t552;
-    P_new[346] = t566;
-    P_new[347] = t579;
-    P_new[348] = t591;
     P_new[349] = t602;
     P_new[350] = t612;
     P_new[351] = t613;
-    P_new[352] = t614;
-    P_new[353] = t615;
-    P_new[354] = t616;
-    P_new[355] = t617;
-    P_new[356] = t618;
-    P_new[357] = t619;
-    P_new[358] = t620;
-    P_new[359] = t621;
-    P_new[360] = t382;
-    P_new[361] = t405;
-    P_new[362] = t427;
-    P_new[363] = t448;
-    P_new[364] = t468;
-    P_new[365] = t487;
-    P_new[366] = t505;
-    P_new[367] = t522;
-    P_new[368] = t538;
-    P_new[369] = t553;
-    P_new[370] = t567;
-    P_new[371] = t580;
-    P_new[372] = t592;
     P_new[373] = t603;
     P_new[374] = t613;
     P_new[375] = t622;
-    P_new[376] = t623;
-    P_new[377] = t624;
-    P_new[378] = t625;
-    P_new[379] = t626;
-    P_new[380] = t627;
-    P_new[381] = t628;
-    P_new[382] = t629;
-    P_new[383] = t630;
-    P_new[384] = t383;
-    P_new[385] = t406;
-    P_new[386] = t428;
-    P_new[387] = t449;
-    P_new[388] = t469;
-    P_new[389] = t488;
-    P_new[390] = t506;
-    P_new[391] = t523;
-    P_new[392] = t539;
-    P_new[393] = t554;
-    P_new[394] = t568;
-    P_new[395] = t581;
-    P_new[396] = t593;
-    P_new[397] = t604;
-    P_new[398] = t614;
-    P_new[399] = t623;
-    P_new[400] = t631;
-    P_new[401] = t632;
-    P_new[402] = t633;
-    P_new[403] = t634;
-    P_new[404] = t635;
-    P_new[405] = t636;
-    P_new[406] = t637;
-    P_new[407] = t638;
-    P_new[408] = t384;
-    P_new[409] = t407;
-    P_new[410] = t429;
-    P_new[411] = t450;
-    P_new[412] = t470;
-    P_new[413] = t489;
-    P_new[414] = t507;
-    P_new[415] = t524;
-    P_new[416] = t540;
-    P_new[417] = t555;
-    P_new[418] = t569;
-    P_new[419] = t582;
-    P_new[420] = t594;
-    P_new[421] = t605;
-    P_new[422] = t615;
-    P_new[423] = t624;
-    P_new[424] = t632;
     P_new[425] = t639;
     P_new[426] = t640;
     P_new[427] = t641;
-    P_new[428] = t642;
-    P_new[429] = t643;
-    P_new[430] = t644;
-    P_new[431] = t645;
-    P_new[432] = t385;
-    P_new[433] = t408;
-    P_new[434] = t430;
-    P_new[435] = t451;
-    P_new[436] = t471;
-    P_new[437] = t490;
-    P_new[438] = t508;
-    P_new[439] = t525;
-    P_new[440] = t541;
-    P_new[441] = t556;
-    P_new[442] = t570;
-    P_new[443] = t583;
-    P_new[444] = t595;
-    P_new[445] = t606;
-    P_new[446] = t616;
-    P_new[447] = t625;
-    P_new[448] = t633;
     P_new[449] = t640;
     P_new[450] = t646;
     P_new[451] = t647;
-    P_new[452] = t648;
-    P_new[453] = t649;
-    P_new[454] = t650;
-    P_new[455] = t651;
-    P_new[456] = t386;
-    P_new[457] = t409;
-    P_new[458] = t431;
-    P_new[459] = t452;
-    P_new[460] = t472;
-    P_new[461] = t491;
-    P_new[462] = t509;
-    P_new[463] = t526;
-    P_new[464] = t542;
-    P_new[465] = t557;
-    P_new[466] = t571;
-    P_new[467] = t584;
-    P_new[468] = t596;
-    P_new[469] = t607;
-    P_new[470] = t617;
-    P_new[471] = t626;
-    P_new[472] = t634;
     P_new[473] = t641;
     P_new[474] = t647;
     P_new[475] = t652;
-    P_new[476] = t653;
-    P_new[477] = t654;
-    P_new[478] = t655;
-    P_new[479] = t656;
-    P_new[480] = t387;
-    P_new[481] = t410;
-    P_new[482] = t432;
-    P_new[483] = t453;
-    P_new[484] = t473;
-    P_new[485] = t492;
-    P_new[486] = t510;
-    P_new[487] = t527;
-    P_new[488] = t543;
-    P_new[489] = t558;
-    P_new[490] = t572;
-    P_new[491] = t585;
-    P_new[492] = t597;
-    P_new[493] = t608;
-    P_new[494] = t618;
-    P_new[495] = t627;
-    P_new[496] = t635;
-    P_new[497] = t642;
-    P_new[498] = t648;
-    P_new[499] = t653;
-    P_new[500] = t657;
-    P_new[501] = t658;
-    P_new[502] = t659;
-    P_new[503] = t660;
-    P_new[504] = t388;
-    P_new[505] = t411;
-    P_new[506] = t433;
-    P_new[507] = t454;
-    P_new[508] = t474;
-    P_new[509] = t493;
-    P_new[510] = t511;
-    P_new[511] = t528;
-    P_new[512] = t544;
-    P_new[513] = t559;
-    P_new[514] = t573;
-    P_new[515] = t586;
-    P_new[516] = t598;
-    P_new[517] = t609;
-    P_new[518] = t619;
-    P_new[519] = t628;
-    P_new[520] = t636;
-    P_new[521] = t643;
-    P_new[522] = t649;
-    P_new[523] = t654;
-    P_new[524] = t658;
     P_new[525] = t661;
     P_new[526] = t662;
     P_new[527] = t663;
-    P_new[528] = t389;
-    P_new[529] = t412;
-    P_new[530] = t434;
-    P_new[531] = t455;
-    P_new[532] = t475;
-    P_new[533] = t494;
-    P_new[534] = t512;
-    P_new[535] = t529;
-    P_new[536] = t545;
-    P_new[537] = t560;
-    P_new[538] = t574;
-    P_new[539] = t587;
-    P_new[540] = t599;
-    P_new[541] = t610;
-    P_new[542] = t620;
-    P_new[543] = t629;
-    P_new[544] = t637;
-    P_new[545] = t644;
-    P_new[546] = t650;
-    P_new[547] = t655;
-    P_new[548] = t659;
     P_new[549] = t662;
     P_new[550] = t664;
     P_new[551] = t665;
-    P_new[552] = t390;
-    P_new[553] = t413;
-    P_new[554] = t435;
-    P_new[555] = t456;
-    P_new[556] = t476;
-    P_new[557] = t495;
-    P_new[558] = t513;
-    P_new[559] = t530;
-    P_new[560] = t546;
-    P_new[561] = t561;
-    P_new[562] = t575;
-    P_new[563] = t588;
-    P_new[564] = t600;
-    P_new[565] = t611;
-    P_new[566] = t621;
-    P_new[567] = t630;
-    P_new[568] = t638;
-    P_new[569] = t645;
-    P_new[570] = t651;
-    P_new[571] = t656;
-    P_new[572] = t660;
     P_new[573] = t663;
     P_new[574] = t665;
     P_new[575] = t666;
@@ -5065,1719 +4957,1653 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
 {
     (void)p;
     const double t1 = x[9] + z[0];
-    #if DERIVE_VECTOR
-    const derive_vd v_t2 = (-((derive_vd){P[216], P[217], P[218], P[219]}));
-    const double t3 = v_t2[1];
-    const double t4 = v_t2[2];
-    const double t5 = v_t2[3];
-    #else
-    const double t2 = -P[216];
-    const double t3 = -P[217];
-    const double t4 = -P[218];
-    const double t5 = -P[219];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t6 = (-((derive_vd){P[220], P[221], P[222], P[223]}));
-    const double t7 = v_t6[1];
-    const double t8 = v_t6[2];
-    const double t9 = v_t6[3];
-    #else
-    const double t6 = -P[220];
-    const double t7 = -P[221];
-    const double t8 = -P[222];
-    const double t9 = -P[223];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t10 = (-((derive_vd){P[224], P[225], P[226], P[227]}));
-    const double t11 = v_t10[1];
-    const double t12 = v_t10[2];
-    const double t13 = v_t10[3];
-    #else
-    const double t10 = -P[224];
-    const double t11 = -P[225];
-    const double t12 = -P[226];
-    const double t13 = -P[227];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t14 = (-((derive_vd){P[228], P[229], P[230], P[231]}));
-    const double t15 = v_t14[1];
-    const double t16 = v_t14[2];
-    const double t17 = v_t14[3];
-    #else
-    const double t14 = -P[228];
-    const double t15 = -P[229];
-    const double t16 = -P[230];
-    const double t17 = -P[231];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t18 = (-((derive_vd){P[232], P[233], P[234], P[235]}));
-    const double t19 = v_t18[1];
-    const double t20 = v_t18[2];
-    const double t21 = v_t18[3];
-    #else
-    const double t18 = -P[232];
-    const double t19 = -P[233];
-    const double t20 = -P[234];
-    const double t21 = -P[235];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t22 = (-((derive_vd){P[236], P[237], P[238], P[239]}));
-    const double t23 = v_t22[1];
-    const double t24 = v_t22[2];
-    const double t25 = v_t22[3];
-    #else
-    const double t22 = -P[236];
-    const double t23 = -P[237];
-    const double t24 = -P[238];
-    const double t25 = -P[239];
-    #endif
-    const double t26 = 0.25 - t11;
-    if (!(t26 > 0.0)) {
+    const double t2 = 0.25 + P[225];
+    if (!(t2 > 0.0)) {
         return 8; /* S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive */
     }
-    const double t27 = (-1.0)/t26;
-    const double t28 = t1*t27;
+    const double t3 = (-1.0)/t2;
+    const double t4 = t1*t3;
     #if DERIVE_VECTOR
-    const derive_vd v_t29 = (((derive_vd){t27, t27, t27, t27}) * v_t2);
+    const derive_vd v_t5 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[216], P[217], P[218], P[219]}));
+    const double t5 = v_t5[0];
+    const double t6 = v_t5[1];
+    const double t7 = v_t5[2];
+    const double t8 = v_t5[3];
+    #else
+    const double t5 = t3*P[216];
+    const double t6 = t3*P[217];
+    const double t7 = t3*P[218];
+    const double t8 = t3*P[219];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t9 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[220], P[221], P[222], P[223]}));
+    const double t9 = v_t9[0];
+    const double t10 = v_t9[1];
+    const double t11 = v_t9[2];
+    const double t12 = v_t9[3];
+    #else
+    const double t9 = t3*P[220];
+    const double t10 = t3*P[221];
+    const double t11 = t3*P[222];
+    const double t12 = t3*P[223];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t13 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[224], P[225], P[226], P[227]}));
+    const double t13 = v_t13[0];
+    const double t14 = v_t13[1];
+    const double t15 = v_t13[2];
+    const double t16 = v_t13[3];
+    #else
+    const double t13 = t3*P[224];
+    const double t14 = t3*P[225];
+    const double t15 = t3*P[226];
+    const double t16 = t3*P[227];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t17 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const double t17 = v_t17[0];
+    const double t18 = v_t17[1];
+    const double t19 = v_t17[2];
+    const double t20 = v_t17[3];
+    #else
+    const double t17 = t3*P[228];
+    const double t18 = t3*P[229];
+    const double t19 = t3*P[230];
+    const double t20 = t3*P[231];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t21 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const double t21 = v_t21[0];
+    const double t22 = v_t21[1];
+    const double t23 = v_t21[2];
+    const double t24 = v_t21[3];
+    #else
+    const double t21 = t3*P[232];
+    const double t22 = t3*P[233];
+    const double t23 = t3*P[234];
+    const double t24 = t3*P[235];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t25 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const double t25 = v_t25[0];
+    const double t26 = v_t25[1];
+    const double t27 = v_t25[2];
+    const double t28 = v_t25[3];
+    #else
+    const double t25 = t3*P[236];
+    const double t26 = t3*P[237];
+    const double t27 = t3*P[238];
+    const double t28 = t3*P[239];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t29 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[216], P[217], P[218], P[219]}), ((derive_vd){x[0], x[1], x[2], x[3]}));
     const double t29 = v_t29[0];
     const double t30 = v_t29[1];
     const double t31 = v_t29[2];
     const double t32 = v_t29[3];
     #else
-    const double t29 = t27*t2;
-    const double t30 = t27*t3;
-    const double t31 = t27*t4;
-    const double t32 = t27*t5;
+    const double t29 = DERIVE_FMA(t4, P[216], x[0]);
+    const double t30 = DERIVE_FMA(t4, P[217], x[1]);
+    const double t31 = DERIVE_FMA(t4, P[218], x[2]);
+    const double t32 = DERIVE_FMA(t4, P[219], x[3]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t33 = (((derive_vd){t27, t27, t27, t27}) * v_t6);
-    const double t33 = v_t33[0];
-    const double t34 = v_t33[1];
-    const double t35 = v_t33[2];
-    const double t36 = v_t33[3];
+    const derive_vd v_t33 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){x[4], x[5], x[6], x[7]}));
+    *(derive_vd_unaligned *)&x_new[4] = v_t33;
     #else
-    const double t33 = t27*t6;
-    const double t34 = t27*t7;
-    const double t35 = t27*t8;
-    const double t36 = t27*t9;
+    const double t33 = DERIVE_FMA(t4, P[220], x[4]);
+    const double t34 = DERIVE_FMA(t4, P[221], x[5]);
+    const double t35 = DERIVE_FMA(t4, P[222], x[6]);
+    const double t36 = DERIVE_FMA(t4, P[223], x[7]);
+    x_new[4] = t33;
+    x_new[5] = t34;
+    x_new[6] = t35;
+    x_new[7] = t36;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t37 = (((derive_vd){t27, t27, t27, t27}) * v_t10);
-    const double t37 = v_t37[0];
-    const double t38 = v_t37[1];
-    const double t39 = v_t37[2];
-    const double t40 = v_t37[3];
+    const derive_vd v_t37 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
+    *(derive_vd_unaligned *)&x_new[8] = v_t37;
     #else
-    const double t37 = t27*t10;
-    const double t38 = t27*t11;
-    const double t39 = t27*t12;
-    const double t40 = t27*t13;
+    const double t37 = DERIVE_FMA(t4, P[224], x[8]);
+    const double t38 = DERIVE_FMA(t4, P[225], x[9]);
+    const double t39 = DERIVE_FMA(t4, P[226], x[10]);
+    const double t40 = DERIVE_FMA(t4, P[227], x[11]);
+    x_new[8] = t37;
+    x_new[9] = t38;
+    x_new[10] = t39;
+    x_new[11] = t40;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t41 = (((derive_vd){t27, t27, t27, t27}) * v_t14);
-    const double t41 = v_t41[0];
-    const double t42 = v_t41[1];
-    const double t43 = v_t41[2];
-    const double t44 = v_t41[3];
+    const derive_vd v_t41 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
+    *(derive_vd_unaligned *)&x_new[12] = v_t41;
     #else
-    const double t41 = t27*t14;
-    const double t42 = t27*t15;
-    const double t43 = t27*t16;
-    const double t44 = t27*t17;
+    const double t41 = DERIVE_FMA(t4, P[228], x[12]);
+    const double t42 = DERIVE_FMA(t4, P[229], x[13]);
+    const double t43 = DERIVE_FMA(t4, P[230], x[14]);
+    const double t44 = DERIVE_FMA(t4, P[231], x[15]);
+    x_new[12] = t41;
+    x_new[13] = t42;
+    x_new[14] = t43;
+    x_new[15] = t44;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t45 = (((derive_vd){t27, t27, t27, t27}) * v_t18);
-    const double t45 = v_t45[0];
-    const double t46 = v_t45[1];
-    const double t47 = v_t45[2];
-    const double t48 = v_t45[3];
+    const derive_vd v_t45 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){x[16], x[17], x[18], x[19]}));
+    *(derive_vd_unaligned *)&x_new[16] = v_t45;
     #else
-    const double t45 = t27*t18;
-    const double t46 = t27*t19;
-    const double t47 = t27*t20;
-    const double t48 = t27*t21;
+    const double t45 = DERIVE_FMA(t4, P[232], x[16]);
+    const double t46 = DERIVE_FMA(t4, P[233], x[17]);
+    const double t47 = DERIVE_FMA(t4, P[234], x[18]);
+    const double t48 = DERIVE_FMA(t4, P[235], x[19]);
+    x_new[16] = t45;
+    x_new[17] = t46;
+    x_new[18] = t47;
+    x_new[19] = t48;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t49 = (((derive_vd){t27, t27, t27, t27}) * v_t22);
-    const double t49 = v_t49[0];
-    const double t50 = v_t49[1];
-    const double t51 = v_t49[2];
-    const double t52 = v_t49[3];
+    const derive_vd v_t49 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){x[20], x[21], x[22], x[23]}));
+    *(derive_vd_unaligned *)&x_new[20] = v_t49;
     #else
-    const double t49 = t27*t22;
-    const double t50 = t27*t23;
-    const double t51 = t27*t24;
-    const double t52 = t27*t25;
+    const double t49 = DERIVE_FMA(t4, P[236], x[20]);
+    const double t50 = DERIVE_FMA(t4, P[237], x[21]);
+    const double t51 = DERIVE_FMA(t4, P[238], x[22]);
+    const double t52 = DERIVE_FMA(t4, P[239], x[23]);
+    x_new[20] = t49;
+    x_new[21] = t50;
+    x_new[22] = t51;
+    x_new[23] = t52;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t53 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t2, ((derive_vd){x[0], x[1], x[2], x[3]}));
-    const double t53 = v_t53[0];
+    const derive_vd v_t53 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[216], P[217], P[218], P[219]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
     const double t54 = v_t53[1];
     const double t55 = v_t53[2];
     const double t56 = v_t53[3];
-    #else
-    const double t53 = DERIVE_FNMA(t28, t2, x[0]);
-    const double t54 = DERIVE_FNMA(t28, t3, x[1]);
-    const double t55 = DERIVE_FNMA(t28, t4, x[2]);
-    const double t56 = DERIVE_FNMA(t28, t5, x[3]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t57 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t6, ((derive_vd){x[4], x[5], x[6], x[7]}));
-    *(derive_vd_unaligned *)&x_new[4] = v_t57;
-    #else
-    const double t57 = DERIVE_FNMA(t28, t6, x[4]);
-    const double t58 = DERIVE_FNMA(t28, t7, x[5]);
-    const double t59 = DERIVE_FNMA(t28, t8, x[6]);
-    const double t60 = DERIVE_FNMA(t28, t9, x[7]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t61 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t10, ((derive_vd){x[8], x[9], x[10], x[11]}));
-    *(derive_vd_unaligned *)&x_new[8] = v_t61;
-    #else
-    const double t61 = DERIVE_FNMA(t28, t10, x[8]);
-    const double t62 = DERIVE_FNMA(t28, t11, x[9]);
-    const double t63 = DERIVE_FNMA(t28, t12, x[10]);
-    const double t64 = DERIVE_FNMA(t28, t13, x[11]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t65 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t14, ((derive_vd){x[12], x[13], x[14], x[15]}));
-    *(derive_vd_unaligned *)&x_new[12] = v_t65;
-    #else
-    const double t65 = DERIVE_FNMA(t28, t14, x[12]);
-    const double t66 = DERIVE_FNMA(t28, t15, x[13]);
-    const double t67 = DERIVE_FNMA(t28, t16, x[14]);
-    const double t68 = DERIVE_FNMA(t28, t17, x[15]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t69 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t18, ((derive_vd){x[16], x[17], x[18], x[19]}));
-    *(derive_vd_unaligned *)&x_new[16] = v_t69;
-    #else
-    const double t69 = DERIVE_FNMA(t28, t18, x[16]);
-    const double t70 = DERIVE_FNMA(t28, t19, x[17]);
-    const double t71 = DERIVE_FNMA(t28, t20, x[18]);
-    const double t72 = DERIVE_FNMA(t28, t21, x[19]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t73 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t22, ((derive_vd){x[20], x[21], x[22], x[23]}));
-    *(derive_vd_unaligned *)&x_new[20] = v_t73;
-    #else
-    const double t73 = DERIVE_FNMA(t28, t22, x[20]);
-    const double t74 = DERIVE_FNMA(t28, t23, x[21]);
-    const double t75 = DERIVE_FNMA(t28, t24, x[22]);
-    const double t76 = DERIVE_FNMA(t28, t25, x[23]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t77 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t2, ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const double t78 = v_t77[1];
-    const double t79 = v_t77[2];
-    const double t80 = v_t77[3];
-    *(derive_vd_unaligned *)&P_new[0] = v_t77;
-    #else
-    const double t77 = DERIVE_FMA(t29, t2, P[0]);
-    const double t78 = DERIVE_FMA(t29, t3, P[1]);
-    const double t79 = DERIVE_FMA(t29, t4, P[2]);
-    const double t80 = DERIVE_FMA(t29, t5, P[3]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t81 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t6, ((derive_vd){P[4], P[5], P[6], P[7]}));
-    #else
-    const double t81 = DERIVE_FMA(t29, t6, P[4]);
-    const double t82 = DERIVE_FMA(t29, t7, P[5]);
-    const double t83 = DERIVE_FMA(t29, t8, P[6]);
-    const double t84 = DERIVE_FMA(t29, t9, P[7]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t85 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t10, ((derive_vd){P[8], P[9], P[10], P[11]}));
-    #else
-    const double t85 = DERIVE_FMA(t29, t10, P[8]);
-    const double t86 = DERIVE_FMA(t29, t11, P[9]);
-    const double t87 = DERIVE_FMA(t29, t12, P[10]);
-    const double t88 = DERIVE_FMA(t29, t13, P[11]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t89 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t14, ((derive_vd){P[12], P[13], P[14], P[15]}));
-    #else
-    const double t89 = DERIVE_FMA(t29, t14, P[12]);
-    const double t90 = DERIVE_FMA(t29, t15, P[13]);
-    const double t91 = DERIVE_FMA(t29, t16, P[14]);
-    const double t92 = DERIVE_FMA(t29, t17, P[15]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t93 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t18, ((derive_vd){P[16], P[17], P[18], P[19]}));
-    #else
-    const double t93 = DERIVE_FMA(t29, t18, P[16]);
-    const double t94 = DERIVE_FMA(t29, t19, P[17]);
-    const double t95 = DERIVE_FMA(t29, t20, P[18]);
-    const double t96 = DERIVE_FMA(t29, t21, P[19]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t97 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t22, ((derive_vd){P[20], P[21], P[22], P[23]}));
-    #else
-    const double t97 = DERIVE_FMA(t29, t22, P[20]);
-    const double t98 = DERIVE_FMA(t29, t23, P[21]);
-    const double t99 = DERIVE_FMA(t29, t24, P[22]);
-    const double t100 = DERIVE_FMA(t29, t25, P[23]);
-    #endif
-    const double t101 = DERIVE_FMA(t3, t30, P[25]);
-    const double t102 = DERIVE_FMA(t30, t4, P[26]);
-    const double t103 = DERIVE_FMA(t30, t5, P[27]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t104 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t6, ((derive_vd){P[28], P[29], P[30], P[31]}));
-    #else
-    const double t104 = DERIVE_FMA(t30, t6, P[28]);
-    const double t105 = DERIVE_FMA(t30, t7, P[29]);
-    const double t106 = DERIVE_FMA(t30, t8, P[30]);
-    const double t107 = DERIVE_FMA(t30, t9, P[31]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t108 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t10, ((derive_vd){P[32], P[33], P[34], P[35]}));
-    #else
-    const double t108 = DERIVE_FMA(t30, t10, P[32]);
-    const double t109 = DERIVE_FMA(t30, t11, P[33]);
-    const double t110 = DERIVE_FMA(t30, t12, P[34]);
-    const double t111 = DERIVE_FMA(t30, t13, P[35]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t112 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t14, ((derive_vd){P[36], P[37], P[38], P[39]}));
-    #else
-    const double t112 = DERIVE_FMA(t30, t14, P[36]);
-    const double t113 = DERIVE_FMA(t30, t15, P[37]);
-    const double t114 = DERIVE_FMA(t30, t16, P[38]);
-    const double t115 = DERIVE_FMA(t30, t17, P[39]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t116 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t18, ((derive_vd){P[40], P[41], P[42], P[43]}));
-    #else
-    const double t116 = DERIVE_FMA(t30, t18, P[40]);
-    const double t117 = DERIVE_FMA(t30, t19, P[41]);
-    const double t118 = DERIVE_FMA(t30, t20, P[42]);
-    const double t119 = DERIVE_FMA(t30, t21, P[43]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t120 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t22, ((derive_vd){P[44], P[45], P[46], P[47]}));
-    #else
-    const double t120 = DERIVE_FMA(t30, t22, P[44]);
-    const double t121 = DERIVE_FMA(t30, t23, P[45]);
-    const double t122 = DERIVE_FMA(t30, t24, P[46]);
-    const double t123 = DERIVE_FMA(t30, t25, P[47]);
-    #endif
-    const double t124 = DERIVE_FMA(t31, t4, P[50]);
-    const double t125 = DERIVE_FMA(t31, t5, P[51]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t126 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t6, ((derive_vd){P[52], P[53], P[54], P[55]}));
-    #else
-    const double t126 = DERIVE_FMA(t31, t6, P[52]);
-    const double t127 = DERIVE_FMA(t31, t7, P[53]);
-    const double t128 = DERIVE_FMA(t31, t8, P[54]);
-    const double t129 = DERIVE_FMA(t31, t9, P[55]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t130 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t10, ((derive_vd){P[56], P[57], P[58], P[59]}));
-    #else
-    const double t130 = DERIVE_FMA(t31, t10, P[56]);
-    const double t131 = DERIVE_FMA(t31, t11, P[57]);
-    const double t132 = DERIVE_FMA(t31, t12, P[58]);
-    const double t133 = DERIVE_FMA(t31, t13, P[59]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t134 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t14, ((derive_vd){P[60], P[61], P[62], P[63]}));
-    #else
-    const double t134 = DERIVE_FMA(t31, t14, P[60]);
-    const double t135 = DERIVE_FMA(t31, t15, P[61]);
-    const double t136 = DERIVE_FMA(t31, t16, P[62]);
-    const double t137 = DERIVE_FMA(t31, t17, P[63]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t138 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t18, ((derive_vd){P[64], P[65], P[66], P[67]}));
-    #else
-    const double t138 = DERIVE_FMA(t31, t18, P[64]);
-    const double t139 = DERIVE_FMA(t31, t19, P[65]);
-    const double t140 = DERIVE_FMA(t31, t20, P[66]);
-    const double t141 = DERIVE_FMA(t31, t21, P[67]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t142 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t22, ((derive_vd){P[68], P[69], P[70], P[71]}));
-    #else
-    const double t142 = DERIVE_FMA(t31, t22, P[68]);
-    const double t143 = DERIVE_FMA(t31, t23, P[69]);
-    const double t144 = DERIVE_FMA(t31, t24, P[70]);
-    const double t145 = DERIVE_FMA(t31, t25, P[71]);
-    #endif
-    const double t146 = DERIVE_FMA(t32, t5, P[75]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t6, ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd tr_v_t81_0 = __builtin_shufflevector(v_t81, v_t104, 0, 4, 2, 6);
-    const derive_vd tr_v_t81_1 = __builtin_shufflevector(v_t81, v_t104, 1, 5, 3, 7);
-    const derive_vd tr_v_t81_2 = __builtin_shufflevector(v_t126, v_t147, 0, 4, 2, 6);
-    const derive_vd tr_v_t81_3 = __builtin_shufflevector(v_t126, v_t147, 1, 5, 3, 7);
-    const derive_vd tr_v_t81_c0 = __builtin_shufflevector(tr_v_t81_0, tr_v_t81_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t81_c1 = __builtin_shufflevector(tr_v_t81_1, tr_v_t81_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t81_c2 = __builtin_shufflevector(tr_v_t81_0, tr_v_t81_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t81_c3 = __builtin_shufflevector(tr_v_t81_1, tr_v_t81_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[4] = v_t81;
-    *(derive_vd_unaligned *)&P_new[28] = v_t104;
-    *(derive_vd_unaligned *)&P_new[52] = v_t126;
-    *(derive_vd_unaligned *)&P_new[76] = v_t147;
-    *(derive_vd_unaligned *)&P_new[96] = tr_v_t81_c0;
-    *(derive_vd_unaligned *)&P_new[120] = tr_v_t81_c1;
-    *(derive_vd_unaligned *)&P_new[144] = tr_v_t81_c2;
-    *(derive_vd_unaligned *)&P_new[168] = tr_v_t81_c3;
-    #else
-    const double t147 = DERIVE_FMA(t32, t6, P[76]);
-    const double t148 = DERIVE_FMA(t32, t7, P[77]);
-    const double t149 = DERIVE_FMA(t32, t8, P[78]);
-    const double t150 = DERIVE_FMA(t32, t9, P[79]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t10, ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd tr_v_t85_0 = __builtin_shufflevector(v_t85, v_t108, 0, 4, 2, 6);
-    const derive_vd tr_v_t85_1 = __builtin_shufflevector(v_t85, v_t108, 1, 5, 3, 7);
-    const derive_vd tr_v_t85_2 = __builtin_shufflevector(v_t130, v_t151, 0, 4, 2, 6);
-    const derive_vd tr_v_t85_3 = __builtin_shufflevector(v_t130, v_t151, 1, 5, 3, 7);
-    const derive_vd tr_v_t85_c0 = __builtin_shufflevector(tr_v_t85_0, tr_v_t85_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t85_c1 = __builtin_shufflevector(tr_v_t85_1, tr_v_t85_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t85_c2 = __builtin_shufflevector(tr_v_t85_0, tr_v_t85_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t85_c3 = __builtin_shufflevector(tr_v_t85_1, tr_v_t85_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[8] = v_t85;
-    *(derive_vd_unaligned *)&P_new[32] = v_t108;
-    *(derive_vd_unaligned *)&P_new[56] = v_t130;
-    *(derive_vd_unaligned *)&P_new[80] = v_t151;
-    *(derive_vd_unaligned *)&P_new[192] = tr_v_t85_c0;
-    *(derive_vd_unaligned *)&P_new[216] = tr_v_t85_c1;
-    *(derive_vd_unaligned *)&P_new[240] = tr_v_t85_c2;
-    *(derive_vd_unaligned *)&P_new[264] = tr_v_t85_c3;
-    #else
-    const double t151 = DERIVE_FMA(t32, t10, P[80]);
-    const double t152 = DERIVE_FMA(t32, t11, P[81]);
-    const double t153 = DERIVE_FMA(t32, t12, P[82]);
-    const double t154 = DERIVE_FMA(t32, t13, P[83]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t14, ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd tr_v_t89_0 = __builtin_shufflevector(v_t89, v_t112, 0, 4, 2, 6);
-    const derive_vd tr_v_t89_1 = __builtin_shufflevector(v_t89, v_t112, 1, 5, 3, 7);
-    const derive_vd tr_v_t89_2 = __builtin_shufflevector(v_t134, v_t155, 0, 4, 2, 6);
-    const derive_vd tr_v_t89_3 = __builtin_shufflevector(v_t134, v_t155, 1, 5, 3, 7);
-    const derive_vd tr_v_t89_c0 = __builtin_shufflevector(tr_v_t89_0, tr_v_t89_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t89_c1 = __builtin_shufflevector(tr_v_t89_1, tr_v_t89_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t89_c2 = __builtin_shufflevector(tr_v_t89_0, tr_v_t89_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t89_c3 = __builtin_shufflevector(tr_v_t89_1, tr_v_t89_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[12] = v_t89;
-    *(derive_vd_unaligned *)&P_new[36] = v_t112;
-    *(derive_vd_unaligned *)&P_new[60] = v_t134;
-    *(derive_vd_unaligned *)&P_new[84] = v_t155;
-    *(derive_vd_unaligned *)&P_new[288] = tr_v_t89_c0;
-    *(derive_vd_unaligned *)&P_new[312] = tr_v_t89_c1;
-    *(derive_vd_unaligned *)&P_new[336] = tr_v_t89_c2;
-    *(derive_vd_unaligned *)&P_new[360] = tr_v_t89_c3;
-    #else
-    const double t155 = DERIVE_FMA(t32, t14, P[84]);
-    const double t156 = DERIVE_FMA(t32, t15, P[85]);
-    const double t157 = DERIVE_FMA(t32, t16, P[86]);
-    const double t158 = DERIVE_FMA(t32, t17, P[87]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t18, ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd tr_v_t93_0 = __builtin_shufflevector(v_t93, v_t116, 0, 4, 2, 6);
-    const derive_vd tr_v_t93_1 = __builtin_shufflevector(v_t93, v_t116, 1, 5, 3, 7);
-    const derive_vd tr_v_t93_2 = __builtin_shufflevector(v_t138, v_t159, 0, 4, 2, 6);
-    const derive_vd tr_v_t93_3 = __builtin_shufflevector(v_t138, v_t159, 1, 5, 3, 7);
-    const derive_vd tr_v_t93_c0 = __builtin_shufflevector(tr_v_t93_0, tr_v_t93_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t93_c1 = __builtin_shufflevector(tr_v_t93_1, tr_v_t93_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t93_c2 = __builtin_shufflevector(tr_v_t93_0, tr_v_t93_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t93_c3 = __builtin_shufflevector(tr_v_t93_1, tr_v_t93_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[16] = v_t93;
-    *(derive_vd_unaligned *)&P_new[40] = v_t116;
-    *(derive_vd_unaligned *)&P_new[64] = v_t138;
-    *(derive_vd_unaligned *)&P_new[88] = v_t159;
-    *(derive_vd_unaligned *)&P_new[384] = tr_v_t93_c0;
-    *(derive_vd_unaligned *)&P_new[408] = tr_v_t93_c1;
-    *(derive_vd_unaligned *)&P_new[432] = tr_v_t93_c2;
-    *(derive_vd_unaligned *)&P_new[456] = tr_v_t93_c3;
-    #else
-    const double t159 = DERIVE_FMA(t32, t18, P[88]);
-    const double t160 = DERIVE_FMA(t32, t19, P[89]);
-    const double t161 = DERIVE_FMA(t32, t20, P[90]);
-    const double t162 = DERIVE_FMA(t32, t21, P[91]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t22, ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd tr_v_t97_0 = __builtin_shufflevector(v_t97, v_t120, 0, 4, 2, 6);
-    const derive_vd tr_v_t97_1 = __builtin_shufflevector(v_t97, v_t120, 1, 5, 3, 7);
-    const derive_vd tr_v_t97_2 = __builtin_shufflevector(v_t142, v_t163, 0, 4, 2, 6);
-    const derive_vd tr_v_t97_3 = __builtin_shufflevector(v_t142, v_t163, 1, 5, 3, 7);
-    const derive_vd tr_v_t97_c0 = __builtin_shufflevector(tr_v_t97_0, tr_v_t97_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t97_c1 = __builtin_shufflevector(tr_v_t97_1, tr_v_t97_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t97_c2 = __builtin_shufflevector(tr_v_t97_0, tr_v_t97_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t97_c3 = __builtin_shufflevector(tr_v_t97_1, tr_v_t97_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[20] = v_t97;
-    *(derive_vd_unaligned *)&P_new[44] = v_t120;
-    *(derive_vd_unaligned *)&P_new[68] = v_t142;
-    *(derive_vd_unaligned *)&P_new[92] = v_t163;
-    *(derive_vd_unaligned *)&P_new[480] = tr_v_t97_c0;
-    *(derive_vd_unaligned *)&P_new[504] = tr_v_t97_c1;
-    *(derive_vd_unaligned *)&P_new[528] = tr_v_t97_c2;
-    *(derive_vd_unaligned *)&P_new[552] = tr_v_t97_c3;
-    #else
-    const double t163 = DERIVE_FMA(t32, t22, P[92]);
-    const double t164 = DERIVE_FMA(t32, t23, P[93]);
-    const double t165 = DERIVE_FMA(t32, t24, P[94]);
-    const double t166 = DERIVE_FMA(t32, t25, P[95]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t6, ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const double t168 = v_t167[1];
-    const double t169 = v_t167[2];
-    const double t170 = v_t167[3];
-    *(derive_vd_unaligned *)&P_new[100] = v_t167;
-    #else
-    const double t167 = DERIVE_FMA(t33, t6, P[100]);
-    const double t168 = DERIVE_FMA(t33, t7, P[101]);
-    const double t169 = DERIVE_FMA(t33, t8, P[102]);
-    const double t170 = DERIVE_FMA(t33, t9, P[103]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t10, ((derive_vd){P[104], P[105], P[106], P[107]}));
-    #else
-    const double t171 = DERIVE_FMA(t33, t10, P[104]);
-    const double t172 = DERIVE_FMA(t33, t11, P[105]);
-    const double t173 = DERIVE_FMA(t33, t12, P[106]);
-    const double t174 = DERIVE_FMA(t33, t13, P[107]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t14, ((derive_vd){P[108], P[109], P[110], P[111]}));
-    #else
-    const double t175 = DERIVE_FMA(t33, t14, P[108]);
-    const double t176 = DERIVE_FMA(t33, t15, P[109]);
-    const double t177 = DERIVE_FMA(t33, t16, P[110]);
-    const double t178 = DERIVE_FMA(t33, t17, P[111]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t18, ((derive_vd){P[112], P[113], P[114], P[115]}));
-    #else
-    const double t179 = DERIVE_FMA(t33, t18, P[112]);
-    const double t180 = DERIVE_FMA(t33, t19, P[113]);
-    const double t181 = DERIVE_FMA(t33, t20, P[114]);
-    const double t182 = DERIVE_FMA(t33, t21, P[115]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t22, ((derive_vd){P[116], P[117], P[118], P[119]}));
-    #else
-    const double t183 = DERIVE_FMA(t33, t22, P[116]);
-    const double t184 = DERIVE_FMA(t33, t23, P[117]);
-    const double t185 = DERIVE_FMA(t33, t24, P[118]);
-    const double t186 = DERIVE_FMA(t33, t25, P[119]);
-    #endif
-    const double t187 = DERIVE_FMA(t34, t7, P[125]);
-    const double t188 = DERIVE_FMA(t34, t8, P[126]);
-    const double t189 = DERIVE_FMA(t34, t9, P[127]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t190 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t10, ((derive_vd){P[128], P[129], P[130], P[131]}));
-    #else
-    const double t190 = DERIVE_FMA(t34, t10, P[128]);
-    const double t191 = DERIVE_FMA(t34, t11, P[129]);
-    const double t192 = DERIVE_FMA(t34, t12, P[130]);
-    const double t193 = DERIVE_FMA(t34, t13, P[131]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t194 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t14, ((derive_vd){P[132], P[133], P[134], P[135]}));
-    #else
-    const double t194 = DERIVE_FMA(t34, t14, P[132]);
-    const double t195 = DERIVE_FMA(t34, t15, P[133]);
-    const double t196 = DERIVE_FMA(t34, t16, P[134]);
-    const double t197 = DERIVE_FMA(t34, t17, P[135]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t198 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t18, ((derive_vd){P[136], P[137], P[138], P[139]}));
-    #else
-    const double t198 = DERIVE_FMA(t34, t18, P[136]);
-    const double t199 = DERIVE_FMA(t34, t19, P[137]);
-    const double t200 = DERIVE_FMA(t34, t20, P[138]);
-    const double t201 = DERIVE_FMA(t34, t21, P[139]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t202 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t22, ((derive_vd){P[140], P[141], P[142], P[143]}));
-    #else
-    const double t202 = DERIVE_FMA(t34, t22, P[140]);
-    const double t203 = DERIVE_FMA(t34, t23, P[141]);
-    const double t204 = DERIVE_FMA(t34, t24, P[142]);
-    const double t205 = DERIVE_FMA(t34, t25, P[143]);
-    #endif
-    const double t206 = DERIVE_FMA(t35, t8, P[150]);
-    const double t207 = DERIVE_FMA(t35, t9, P[151]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t208 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t10, ((derive_vd){P[152], P[153], P[154], P[155]}));
-    #else
-    const double t208 = DERIVE_FMA(t35, t10, P[152]);
-    const double t209 = DERIVE_FMA(t35, t11, P[153]);
-    const double t210 = DERIVE_FMA(t35, t12, P[154]);
-    const double t211 = DERIVE_FMA(t35, t13, P[155]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t212 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t14, ((derive_vd){P[156], P[157], P[158], P[159]}));
-    #else
-    const double t212 = DERIVE_FMA(t35, t14, P[156]);
-    const double t213 = DERIVE_FMA(t35, t15, P[157]);
-    const double t214 = DERIVE_FMA(t35, t16, P[158]);
-    const double t215 = DERIVE_FMA(t35, t17, P[159]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t216 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t18, ((derive_vd){P[160], P[161], P[162], P[163]}));
-    #else
-    const double t216 = DERIVE_FMA(t35, t18, P[160]);
-    const double t217 = DERIVE_FMA(t35, t19, P[161]);
-    const double t218 = DERIVE_FMA(t35, t20, P[162]);
-    const double t219 = DERIVE_FMA(t35, t21, P[163]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t22, ((derive_vd){P[164], P[165], P[166], P[167]}));
-    #else
-    const double t220 = DERIVE_FMA(t35, t22, P[164]);
-    const double t221 = DERIVE_FMA(t35, t23, P[165]);
-    const double t222 = DERIVE_FMA(t35, t24, P[166]);
-    const double t223 = DERIVE_FMA(t35, t25, P[167]);
-    #endif
-    const double t224 = DERIVE_FMA(t36, t9, P[175]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t225 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t10, ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const derive_vd tr_v_t171_0 = __builtin_shufflevector(v_t171, v_t190, 0, 4, 2, 6);
-    const derive_vd tr_v_t171_1 = __builtin_shufflevector(v_t171, v_t190, 1, 5, 3, 7);
-    const derive_vd tr_v_t171_2 = __builtin_shufflevector(v_t208, v_t225, 0, 4, 2, 6);
-    const derive_vd tr_v_t171_3 = __builtin_shufflevector(v_t208, v_t225, 1, 5, 3, 7);
-    const derive_vd tr_v_t171_c0 = __builtin_shufflevector(tr_v_t171_0, tr_v_t171_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t171_c1 = __builtin_shufflevector(tr_v_t171_1, tr_v_t171_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t171_c2 = __builtin_shufflevector(tr_v_t171_0, tr_v_t171_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t171_c3 = __builtin_shufflevector(tr_v_t171_1, tr_v_t171_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[104] = v_t171;
-    *(derive_vd_unaligned *)&P_new[128] = v_t190;
-    *(derive_vd_unaligned *)&P_new[152] = v_t208;
-    *(derive_vd_unaligned *)&P_new[176] = v_t225;
-    *(derive_vd_unaligned *)&P_new[196] = tr_v_t171_c0;
-    *(derive_vd_unaligned *)&P_new[220] = tr_v_t171_c1;
-    *(derive_vd_unaligned *)&P_new[244] = tr_v_t171_c2;
-    *(derive_vd_unaligned *)&P_new[268] = tr_v_t171_c3;
-    #else
-    const double t225 = DERIVE_FMA(t36, t10, P[176]);
-    const double t226 = DERIVE_FMA(t36, t11, P[177]);
-    const double t227 = DERIVE_FMA(t36, t12, P[178]);
-    const double t228 = DERIVE_FMA(t36, t13, P[179]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t229 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t14, ((derive_vd){P[180], P[181], P[182], P[183]}));
-    const derive_vd tr_v_t175_0 = __builtin_shufflevector(v_t175, v_t194, 0, 4, 2, 6);
-    const derive_vd tr_v_t175_1 = __builtin_shufflevector(v_t175, v_t194, 1, 5, 3, 7);
-    const derive_vd tr_v_t175_2 = __builtin_shufflevector(v_t212, v_t229, 0, 4, 2, 6);
-    const derive_vd tr_v_t175_3 = __builtin_shufflevector(v_t212, v_t229, 1, 5, 3, 7);
-    const derive_vd tr_v_t175_c0 = __builtin_shufflevector(tr_v_t175_0, tr_v_t175_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t175_c1 = __builtin_shufflevector(tr_v_t175_1, tr_v_t175_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t175_c2 = __builtin_shufflevector(tr_v_t175_0, tr_v_t175_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t175_c3 = __builtin_shufflevector(tr_v_t175_1, tr_v_t175_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[108] = v_t175;
-    *(derive_vd_unaligned *)&P_new[132] = v_t194;
-    *(derive_vd_unaligned *)&P_new[156] = v_t212;
-    *(derive_vd_unaligned *)&P_new[180] = v_t229;
-    *(derive_vd_unaligned *)&P_new[292] = tr_v_t175_c0;
-    *(derive_vd_unaligned *)&P_new[316] = tr_v_t175_c1;
-    *(derive_vd_unaligned *)&P_new[340] = tr_v_t175_c2;
-    *(derive_vd_unaligned *)&P_new[364] = tr_v_t175_c3;
-    #else
-    const double t229 = DERIVE_FMA(t36, t14, P[180]);
-    const double t230 = DERIVE_FMA(t36, t15, P[181]);
-    const double t231 = DERIVE_FMA(t36, t16, P[182]);
-    const double t232 = DERIVE_FMA(t36, t17, P[183]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t233 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t18, ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd tr_v_t179_0 = __builtin_shufflevector(v_t179, v_t198, 0, 4, 2, 6);
-    const derive_vd tr_v_t179_1 = __builtin_shufflevector(v_t179, v_t198, 1, 5, 3, 7);
-    const derive_vd tr_v_t179_2 = __builtin_shufflevector(v_t216, v_t233, 0, 4, 2, 6);
-    const derive_vd tr_v_t179_3 = __builtin_shufflevector(v_t216, v_t233, 1, 5, 3, 7);
-    const derive_vd tr_v_t179_c0 = __builtin_shufflevector(tr_v_t179_0, tr_v_t179_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t179_c1 = __builtin_shufflevector(tr_v_t179_1, tr_v_t179_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t179_c2 = __builtin_shufflevector(tr_v_t179_0, tr_v_t179_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t179_c3 = __builtin_shufflevector(tr_v_t179_1, tr_v_t179_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[112] = v_t179;
-    *(derive_vd_unaligned *)&P_new[136] = v_t198;
-    *(derive_vd_unaligned *)&P_new[160] = v_t216;
-    *(derive_vd_unaligned *)&P_new[184] = v_t233;
-    *(derive_vd_unaligned *)&P_new[388] = tr_v_t179_c0;
-    *(derive_vd_unaligned *)&P_new[412] = tr_v_t179_c1;
-    *(derive_vd_unaligned *)&P_new[436] = tr_v_t179_c2;
-    *(derive_vd_unaligned *)&P_new[460] = tr_v_t179_c3;
-    #else
-    const double t233 = DERIVE_FMA(t36, t18, P[184]);
-    const double t234 = DERIVE_FMA(t36, t19, P[185]);
-    const double t235 = DERIVE_FMA(t36, t20, P[186]);
-    const double t236 = DERIVE_FMA(t36, t21, P[187]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t22, ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd tr_v_t183_0 = __builtin_shufflevector(v_t183, v_t202, 0, 4, 2, 6);
-    const derive_vd tr_v_t183_1 = __builtin_shufflevector(v_t183, v_t202, 1, 5, 3, 7);
-    const derive_vd tr_v_t183_2 = __builtin_shufflevector(v_t220, v_t237, 0, 4, 2, 6);
-    const derive_vd tr_v_t183_3 = __builtin_shufflevector(v_t220, v_t237, 1, 5, 3, 7);
-    const derive_vd tr_v_t183_c0 = __builtin_shufflevector(tr_v_t183_0, tr_v_t183_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t183_c1 = __builtin_shufflevector(tr_v_t183_1, tr_v_t183_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t183_c2 = __builtin_shufflevector(tr_v_t183_0, tr_v_t183_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t183_c3 = __builtin_shufflevector(tr_v_t183_1, tr_v_t183_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[116] = v_t183;
-    *(derive_vd_unaligned *)&P_new[140] = v_t202;
-    *(derive_vd_unaligned *)&P_new[164] = v_t220;
-    *(derive_vd_unaligned *)&P_new[188] = v_t237;
-    *(derive_vd_unaligned *)&P_new[484] = tr_v_t183_c0;
-    *(derive_vd_unaligned *)&P_new[508] = tr_v_t183_c1;
-    *(derive_vd_unaligned *)&P_new[532] = tr_v_t183_c2;
-    *(derive_vd_unaligned *)&P_new[556] = tr_v_t183_c3;
-    #else
-    const double t237 = DERIVE_FMA(t36, t22, P[188]);
-    const double t238 = DERIVE_FMA(t36, t23, P[189]);
-    const double t239 = DERIVE_FMA(t36, t24, P[190]);
-    const double t240 = DERIVE_FMA(t36, t25, P[191]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t10, ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const double t242 = v_t241[1];
-    const double t243 = v_t241[2];
-    const double t244 = v_t241[3];
-    *(derive_vd_unaligned *)&P_new[200] = v_t241;
-    #else
-    const double t241 = DERIVE_FMA(t37, t10, P[200]);
-    const double t242 = DERIVE_FMA(t37, t11, P[201]);
-    const double t243 = DERIVE_FMA(t37, t12, P[202]);
-    const double t244 = DERIVE_FMA(t37, t13, P[203]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t14, ((derive_vd){P[204], P[205], P[206], P[207]}));
-    #else
-    const double t245 = DERIVE_FMA(t37, t14, P[204]);
-    const double t246 = DERIVE_FMA(t37, t15, P[205]);
-    const double t247 = DERIVE_FMA(t37, t16, P[206]);
-    const double t248 = DERIVE_FMA(t37, t17, P[207]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t18, ((derive_vd){P[208], P[209], P[210], P[211]}));
-    #else
-    const double t249 = DERIVE_FMA(t37, t18, P[208]);
-    const double t250 = DERIVE_FMA(t37, t19, P[209]);
-    const double t251 = DERIVE_FMA(t37, t20, P[210]);
-    const double t252 = DERIVE_FMA(t37, t21, P[211]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t22, ((derive_vd){P[212], P[213], P[214], P[215]}));
-    #else
-    const double t253 = DERIVE_FMA(t37, t22, P[212]);
-    const double t254 = DERIVE_FMA(t37, t23, P[213]);
-    const double t255 = DERIVE_FMA(t37, t24, P[214]);
-    const double t256 = DERIVE_FMA(t37, t25, P[215]);
-    #endif
-    const double t257 = DERIVE_FMA(t11, t38, P[225]);
-    const double t258 = DERIVE_FMA(t12, t38, P[226]);
-    const double t259 = DERIVE_FMA(t13, t38, P[227]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t260 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t14, ((derive_vd){P[228], P[229], P[230], P[231]}));
-    #else
-    const double t260 = DERIVE_FMA(t38, t14, P[228]);
-    const double t261 = DERIVE_FMA(t38, t15, P[229]);
-    const double t262 = DERIVE_FMA(t38, t16, P[230]);
-    const double t263 = DERIVE_FMA(t38, t17, P[231]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t264 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t18, ((derive_vd){P[232], P[233], P[234], P[235]}));
-    #else
-    const double t264 = DERIVE_FMA(t38, t18, P[232]);
-    const double t265 = DERIVE_FMA(t38, t19, P[233]);
-    const double t266 = DERIVE_FMA(t38, t20, P[234]);
-    const double t267 = DERIVE_FMA(t38, t21, P[235]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t268 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t22, ((derive_vd){P[236], P[237], P[238], P[239]}));
-    #else
-    const double t268 = DERIVE_FMA(t38, t22, P[236]);
-    const double t269 = DERIVE_FMA(t38, t23, P[237]);
-    const double t270 = DERIVE_FMA(t38, t24, P[238]);
-    const double t271 = DERIVE_FMA(t38, t25, P[239]);
-    #endif
-    const double t272 = DERIVE_FMA(t12, t39, P[250]);
-    const double t273 = DERIVE_FMA(t13, t39, P[251]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t274 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t14, ((derive_vd){P[252], P[253], P[254], P[255]}));
-    #else
-    const double t274 = DERIVE_FMA(t39, t14, P[252]);
-    const double t275 = DERIVE_FMA(t39, t15, P[253]);
-    const double t276 = DERIVE_FMA(t39, t16, P[254]);
-    const double t277 = DERIVE_FMA(t39, t17, P[255]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t278 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t18, ((derive_vd){P[256], P[257], P[258], P[259]}));
-    #else
-    const double t278 = DERIVE_FMA(t39, t18, P[256]);
-    const double t279 = DERIVE_FMA(t39, t19, P[257]);
-    const double t280 = DERIVE_FMA(t39, t20, P[258]);
-    const double t281 = DERIVE_FMA(t39, t21, P[259]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t282 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t22, ((derive_vd){P[260], P[261], P[262], P[263]}));
-    #else
-    const double t282 = DERIVE_FMA(t39, t22, P[260]);
-    const double t283 = DERIVE_FMA(t39, t23, P[261]);
-    const double t284 = DERIVE_FMA(t39, t24, P[262]);
-    const double t285 = DERIVE_FMA(t39, t25, P[263]);
-    #endif
-    const double t286 = DERIVE_FMA(t13, t40, P[275]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t14, ((derive_vd){P[276], P[277], P[278], P[279]}));
-    const derive_vd tr_v_t245_0 = __builtin_shufflevector(v_t245, v_t260, 0, 4, 2, 6);
-    const derive_vd tr_v_t245_1 = __builtin_shufflevector(v_t245, v_t260, 1, 5, 3, 7);
-    const derive_vd tr_v_t245_2 = __builtin_shufflevector(v_t274, v_t287, 0, 4, 2, 6);
-    const derive_vd tr_v_t245_3 = __builtin_shufflevector(v_t274, v_t287, 1, 5, 3, 7);
-    const derive_vd tr_v_t245_c0 = __builtin_shufflevector(tr_v_t245_0, tr_v_t245_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t245_c1 = __builtin_shufflevector(tr_v_t245_1, tr_v_t245_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t245_c2 = __builtin_shufflevector(tr_v_t245_0, tr_v_t245_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t245_c3 = __builtin_shufflevector(tr_v_t245_1, tr_v_t245_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[204] = v_t245;
-    *(derive_vd_unaligned *)&P_new[228] = v_t260;
-    *(derive_vd_unaligned *)&P_new[252] = v_t274;
-    *(derive_vd_unaligned *)&P_new[276] = v_t287;
-    *(derive_vd_unaligned *)&P_new[296] = tr_v_t245_c0;
-    *(derive_vd_unaligned *)&P_new[320] = tr_v_t245_c1;
-    *(derive_vd_unaligned *)&P_new[344] = tr_v_t245_c2;
-    *(derive_vd_unaligned *)&P_new[368] = tr_v_t245_c3;
-    #else
-    const double t287 = DERIVE_FMA(t40, t14, P[276]);
-    const double t288 = DERIVE_FMA(t40, t15, P[277]);
-    const double t289 = DERIVE_FMA(t40, t16, P[278]);
-    const double t290 = DERIVE_FMA(t40, t17, P[279]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t18, ((derive_vd){P[280], P[281], P[282], P[283]}));
-    const derive_vd tr_v_t249_0 = __builtin_shufflevector(v_t249, v_t264, 0, 4, 2, 6);
-    const derive_vd tr_v_t249_1 = __builtin_shufflevector(v_t249, v_t264, 1, 5, 3, 7);
-    const derive_vd tr_v_t249_2 = __builtin_shufflevector(v_t278, v_t291, 0, 4, 2, 6);
-    const derive_vd tr_v_t249_3 = __builtin_shufflevector(v_t278, v_t291, 1, 5, 3, 7);
-    const derive_vd tr_v_t249_c0 = __builtin_shufflevector(tr_v_t249_0, tr_v_t249_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t249_c1 = __builtin_shufflevector(tr_v_t249_1, tr_v_t249_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t249_c2 = __builtin_shufflevector(tr_v_t249_0, tr_v_t249_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t249_c3 = __builtin_shufflevector(tr_v_t249_1, tr_v_t249_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[208] = v_t249;
-    *(derive_vd_unaligned *)&P_new[232] = v_t264;
-    *(derive_vd_unaligned *)&P_new[256] = v_t278;
-    *(derive_vd_unaligned *)&P_new[280] = v_t291;
-    *(derive_vd_unaligned *)&P_new[392] = tr_v_t249_c0;
-    *(derive_vd_unaligned *)&P_new[416] = tr_v_t249_c1;
-    *(derive_vd_unaligned *)&P_new[440] = tr_v_t249_c2;
-    *(derive_vd_unaligned *)&P_new[464] = tr_v_t249_c3;
-    #else
-    const double t291 = DERIVE_FMA(t40, t18, P[280]);
-    const double t292 = DERIVE_FMA(t40, t19, P[281]);
-    const double t293 = DERIVE_FMA(t40, t20, P[282]);
-    const double t294 = DERIVE_FMA(t40, t21, P[283]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t22, ((derive_vd){P[284], P[285], P[286], P[287]}));
-    const derive_vd tr_v_t253_0 = __builtin_shufflevector(v_t253, v_t268, 0, 4, 2, 6);
-    const derive_vd tr_v_t253_1 = __builtin_shufflevector(v_t253, v_t268, 1, 5, 3, 7);
-    const derive_vd tr_v_t253_2 = __builtin_shufflevector(v_t282, v_t295, 0, 4, 2, 6);
-    const derive_vd tr_v_t253_3 = __builtin_shufflevector(v_t282, v_t295, 1, 5, 3, 7);
-    const derive_vd tr_v_t253_c0 = __builtin_shufflevector(tr_v_t253_0, tr_v_t253_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t253_c1 = __builtin_shufflevector(tr_v_t253_1, tr_v_t253_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t253_c2 = __builtin_shufflevector(tr_v_t253_0, tr_v_t253_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t253_c3 = __builtin_shufflevector(tr_v_t253_1, tr_v_t253_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[212] = v_t253;
-    *(derive_vd_unaligned *)&P_new[236] = v_t268;
-    *(derive_vd_unaligned *)&P_new[260] = v_t282;
-    *(derive_vd_unaligned *)&P_new[284] = v_t295;
-    *(derive_vd_unaligned *)&P_new[488] = tr_v_t253_c0;
-    *(derive_vd_unaligned *)&P_new[512] = tr_v_t253_c1;
-    *(derive_vd_unaligned *)&P_new[536] = tr_v_t253_c2;
-    *(derive_vd_unaligned *)&P_new[560] = tr_v_t253_c3;
-    #else
-    const double t295 = DERIVE_FMA(t40, t22, P[284]);
-    const double t296 = DERIVE_FMA(t40, t23, P[285]);
-    const double t297 = DERIVE_FMA(t40, t24, P[286]);
-    const double t298 = DERIVE_FMA(t40, t25, P[287]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t14, ((derive_vd){P[300], P[301], P[302], P[303]}));
-    const double t300 = v_t299[1];
-    const double t301 = v_t299[2];
-    const double t302 = v_t299[3];
-    *(derive_vd_unaligned *)&P_new[300] = v_t299;
-    #else
-    const double t299 = DERIVE_FMA(t41, t14, P[300]);
-    const double t300 = DERIVE_FMA(t41, t15, P[301]);
-    const double t301 = DERIVE_FMA(t41, t16, P[302]);
-    const double t302 = DERIVE_FMA(t41, t17, P[303]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t18, ((derive_vd){P[304], P[305], P[306], P[307]}));
-    #else
-    const double t303 = DERIVE_FMA(t41, t18, P[304]);
-    const double t304 = DERIVE_FMA(t41, t19, P[305]);
-    const double t305 = DERIVE_FMA(t41, t20, P[306]);
-    const double t306 = DERIVE_FMA(t41, t21, P[307]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t22, ((derive_vd){P[308], P[309], P[310], P[311]}));
-    #else
-    const double t307 = DERIVE_FMA(t41, t22, P[308]);
-    const double t308 = DERIVE_FMA(t41, t23, P[309]);
-    const double t309 = DERIVE_FMA(t41, t24, P[310]);
-    const double t310 = DERIVE_FMA(t41, t25, P[311]);
-    #endif
-    const double t311 = DERIVE_FMA(t15, t42, P[325]);
-    const double t312 = DERIVE_FMA(t16, t42, P[326]);
-    const double t313 = DERIVE_FMA(t17, t42, P[327]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t314 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t18, ((derive_vd){P[328], P[329], P[330], P[331]}));
-    #else
-    const double t314 = DERIVE_FMA(t42, t18, P[328]);
-    const double t315 = DERIVE_FMA(t42, t19, P[329]);
-    const double t316 = DERIVE_FMA(t42, t20, P[330]);
-    const double t317 = DERIVE_FMA(t42, t21, P[331]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t318 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t22, ((derive_vd){P[332], P[333], P[334], P[335]}));
-    #else
-    const double t318 = DERIVE_FMA(t42, t22, P[332]);
-    const double t319 = DERIVE_FMA(t42, t23, P[333]);
-    const double t320 = DERIVE_FMA(t42, t24, P[334]);
-    const double t321 = DERIVE_FMA(t42, t25, P[335]);
-    #endif
-    const double t322 = DERIVE_FMA(t16, t43, P[350]);
-    const double t323 = DERIVE_FMA(t17, t43, P[351]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t324 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t18, ((derive_vd){P[352], P[353], P[354], P[355]}));
-    #else
-    const double t324 = DERIVE_FMA(t43, t18, P[352]);
-    const double t325 = DERIVE_FMA(t43, t19, P[353]);
-    const double t326 = DERIVE_FMA(t43, t20, P[354]);
-    const double t327 = DERIVE_FMA(t43, t21, P[355]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t22, ((derive_vd){P[356], P[357], P[358], P[359]}));
-    #else
-    const double t328 = DERIVE_FMA(t43, t22, P[356]);
-    const double t329 = DERIVE_FMA(t43, t23, P[357]);
-    const double t330 = DERIVE_FMA(t43, t24, P[358]);
-    const double t331 = DERIVE_FMA(t43, t25, P[359]);
-    #endif
-    const double t332 = DERIVE_FMA(t17, t44, P[375]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t18, ((derive_vd){P[376], P[377], P[378], P[379]}));
-    const derive_vd tr_v_t303_0 = __builtin_shufflevector(v_t303, v_t314, 0, 4, 2, 6);
-    const derive_vd tr_v_t303_1 = __builtin_shufflevector(v_t303, v_t314, 1, 5, 3, 7);
-    const derive_vd tr_v_t303_2 = __builtin_shufflevector(v_t324, v_t333, 0, 4, 2, 6);
-    const derive_vd tr_v_t303_3 = __builtin_shufflevector(v_t324, v_t333, 1, 5, 3, 7);
-    const derive_vd tr_v_t303_c0 = __builtin_shufflevector(tr_v_t303_0, tr_v_t303_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t303_c1 = __builtin_shufflevector(tr_v_t303_1, tr_v_t303_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t303_c2 = __builtin_shufflevector(tr_v_t303_0, tr_v_t303_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t303_c3 = __builtin_shufflevector(tr_v_t303_1, tr_v_t303_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[304] = v_t303;
-    *(derive_vd_unaligned *)&P_new[328] = v_t314;
-    *(derive_vd_unaligned *)&P_new[352] = v_t324;
-    *(derive_vd_unaligned *)&P_new[376] = v_t333;
-    *(derive_vd_unaligned *)&P_new[396] = tr_v_t303_c0;
-    *(derive_vd_unaligned *)&P_new[420] = tr_v_t303_c1;
-    *(derive_vd_unaligned *)&P_new[444] = tr_v_t303_c2;
-    *(derive_vd_unaligned *)&P_new[468] = tr_v_t303_c3;
-    #else
-    const double t333 = DERIVE_FMA(t44, t18, P[376]);
-    const double t334 = DERIVE_FMA(t44, t19, P[377]);
-    const double t335 = DERIVE_FMA(t44, t20, P[378]);
-    const double t336 = DERIVE_FMA(t44, t21, P[379]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t22, ((derive_vd){P[380], P[381], P[382], P[383]}));
-    const derive_vd tr_v_t307_0 = __builtin_shufflevector(v_t307, v_t318, 0, 4, 2, 6);
-    const derive_vd tr_v_t307_1 = __builtin_shufflevector(v_t307, v_t318, 1, 5, 3, 7);
-    const derive_vd tr_v_t307_2 = __builtin_shufflevector(v_t328, v_t337, 0, 4, 2, 6);
-    const derive_vd tr_v_t307_3 = __builtin_shufflevector(v_t328, v_t337, 1, 5, 3, 7);
-    const derive_vd tr_v_t307_c0 = __builtin_shufflevector(tr_v_t307_0, tr_v_t307_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t307_c1 = __builtin_shufflevector(tr_v_t307_1, tr_v_t307_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t307_c2 = __builtin_shufflevector(tr_v_t307_0, tr_v_t307_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t307_c3 = __builtin_shufflevector(tr_v_t307_1, tr_v_t307_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[308] = v_t307;
-    *(derive_vd_unaligned *)&P_new[332] = v_t318;
-    *(derive_vd_unaligned *)&P_new[356] = v_t328;
-    *(derive_vd_unaligned *)&P_new[380] = v_t337;
-    *(derive_vd_unaligned *)&P_new[492] = tr_v_t307_c0;
-    *(derive_vd_unaligned *)&P_new[516] = tr_v_t307_c1;
-    *(derive_vd_unaligned *)&P_new[540] = tr_v_t307_c2;
-    *(derive_vd_unaligned *)&P_new[564] = tr_v_t307_c3;
-    #else
-    const double t337 = DERIVE_FMA(t44, t22, P[380]);
-    const double t338 = DERIVE_FMA(t44, t23, P[381]);
-    const double t339 = DERIVE_FMA(t44, t24, P[382]);
-    const double t340 = DERIVE_FMA(t44, t25, P[383]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t341 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t18, ((derive_vd){P[400], P[401], P[402], P[403]}));
-    const double t342 = v_t341[1];
-    const double t343 = v_t341[2];
-    const double t344 = v_t341[3];
-    *(derive_vd_unaligned *)&P_new[400] = v_t341;
-    #else
-    const double t341 = DERIVE_FMA(t45, t18, P[400]);
-    const double t342 = DERIVE_FMA(t45, t19, P[401]);
-    const double t343 = DERIVE_FMA(t45, t20, P[402]);
-    const double t344 = DERIVE_FMA(t45, t21, P[403]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t22, ((derive_vd){P[404], P[405], P[406], P[407]}));
-    #else
-    const double t345 = DERIVE_FMA(t45, t22, P[404]);
-    const double t346 = DERIVE_FMA(t45, t23, P[405]);
-    const double t347 = DERIVE_FMA(t45, t24, P[406]);
-    const double t348 = DERIVE_FMA(t45, t25, P[407]);
-    #endif
-    const double t349 = DERIVE_FMA(t19, t46, P[425]);
-    const double t350 = DERIVE_FMA(t20, t46, P[426]);
-    const double t351 = DERIVE_FMA(t21, t46, P[427]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t352 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t22, ((derive_vd){P[428], P[429], P[430], P[431]}));
-    #else
-    const double t352 = DERIVE_FMA(t46, t22, P[428]);
-    const double t353 = DERIVE_FMA(t46, t23, P[429]);
-    const double t354 = DERIVE_FMA(t46, t24, P[430]);
-    const double t355 = DERIVE_FMA(t46, t25, P[431]);
-    #endif
-    const double t356 = DERIVE_FMA(t20, t47, P[450]);
-    const double t357 = DERIVE_FMA(t21, t47, P[451]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t358 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t22, ((derive_vd){P[452], P[453], P[454], P[455]}));
-    #else
-    const double t358 = DERIVE_FMA(t47, t22, P[452]);
-    const double t359 = DERIVE_FMA(t47, t23, P[453]);
-    const double t360 = DERIVE_FMA(t47, t24, P[454]);
-    const double t361 = DERIVE_FMA(t47, t25, P[455]);
-    #endif
-    const double t362 = DERIVE_FMA(t21, t48, P[475]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t22, ((derive_vd){P[476], P[477], P[478], P[479]}));
-    const derive_vd tr_v_t345_0 = __builtin_shufflevector(v_t345, v_t352, 0, 4, 2, 6);
-    const derive_vd tr_v_t345_1 = __builtin_shufflevector(v_t345, v_t352, 1, 5, 3, 7);
-    const derive_vd tr_v_t345_2 = __builtin_shufflevector(v_t358, v_t363, 0, 4, 2, 6);
-    const derive_vd tr_v_t345_3 = __builtin_shufflevector(v_t358, v_t363, 1, 5, 3, 7);
-    const derive_vd tr_v_t345_c0 = __builtin_shufflevector(tr_v_t345_0, tr_v_t345_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t345_c1 = __builtin_shufflevector(tr_v_t345_1, tr_v_t345_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t345_c2 = __builtin_shufflevector(tr_v_t345_0, tr_v_t345_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t345_c3 = __builtin_shufflevector(tr_v_t345_1, tr_v_t345_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[404] = v_t345;
-    *(derive_vd_unaligned *)&P_new[428] = v_t352;
-    *(derive_vd_unaligned *)&P_new[452] = v_t358;
-    *(derive_vd_unaligned *)&P_new[476] = v_t363;
-    *(derive_vd_unaligned *)&P_new[496] = tr_v_t345_c0;
-    *(derive_vd_unaligned *)&P_new[520] = tr_v_t345_c1;
-    *(derive_vd_unaligned *)&P_new[544] = tr_v_t345_c2;
-    *(derive_vd_unaligned *)&P_new[568] = tr_v_t345_c3;
-    #else
-    const double t363 = DERIVE_FMA(t48, t22, P[476]);
-    const double t364 = DERIVE_FMA(t48, t23, P[477]);
-    const double t365 = DERIVE_FMA(t48, t24, P[478]);
-    const double t366 = DERIVE_FMA(t48, t25, P[479]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t22, ((derive_vd){P[500], P[501], P[502], P[503]}));
-    const double t368 = v_t367[1];
-    const double t369 = v_t367[2];
-    const double t370 = v_t367[3];
-    *(derive_vd_unaligned *)&P_new[500] = v_t367;
-    #else
-    const double t367 = DERIVE_FMA(t49, t22, P[500]);
-    const double t368 = DERIVE_FMA(t49, t23, P[501]);
-    const double t369 = DERIVE_FMA(t49, t24, P[502]);
-    const double t370 = DERIVE_FMA(t49, t25, P[503]);
-    #endif
-    const double t371 = DERIVE_FMA(t23, t50, P[525]);
-    const double t372 = DERIVE_FMA(t24, t50, P[526]);
-    const double t373 = DERIVE_FMA(t25, t50, P[527]);
-    const double t374 = DERIVE_FMA(t24, t51, P[550]);
-    const double t375 = DERIVE_FMA(t25, t51, P[551]);
-    const double t376 = DERIVE_FMA(t25, t52, P[575]);
-    const double t377 = DERIVE_FMA(t56, t56, DERIVE_FMA(t55, t55, DERIVE_FMA(t54, t54, t53*t53)));
-    const double t378 = 1.0/sqrt(t377);
-    const double t379 = t378*t53;
-    const double t380 = t378*t54;
-    const double t381 = t378*t55;
-    const double t382 = t378*t56;
-    #if DERIVE_VECTOR
-    x_new[0] = t379;
-    x_new[1] = t380;
-    x_new[2] = t381;
-    x_new[3] = t382;
-    P_new[24] = t78;
-    P_new[25] = t101;
-    P_new[26] = t102;
-    P_new[27] = t103;
-    P_new[48] = t79;
-    P_new[49] = t102;
-    P_new[50] = t124;
-    P_new[51] = t125;
-    P_new[72] = t80;
-    P_new[73] = t103;
-    P_new[74] = t125;
-    P_new[75] = t146;
-    P_new[124] = t168;
-    P_new[125] = t187;
-    P_new[126] = t188;
-    P_new[127] = t189;
-    P_new[148] = t169;
-    P_new[149] = t188;
-    P_new[150] = t206;
-    P_new[151] = t207;
-    P_new[172] = t170;
-    P_new[173] = t189;
-    P_new[174] = t207;
-    P_new[175] = t224;
-    P_new[224] = t242;
-    P_new[225] = t257;
-    P_new[226] = t258;
-    P_new[227] = t259;
-    P_new[248] = t243;
-    P_new[249] = t258;
-    P_new[250] = t272;
-    P_new[251] = t273;
-    P_new[272] = t244;
-    P_new[273] = t259;
-    P_new[274] = t273;
-    P_new[275] = t286;
-    P_new[324] = t300;
-    P_new[325] = t311;
-    P_new[326] = t312;
-    P_new[327] = t313;
-    P_new[348] = t301;
-    P_new[349] = t312;
-    P_new[350] = t322;
-    P_new[351] = t323;
-    P_new[372] = t302;
-    P_new[373] = t313;
-    P_new[374] = t323;
-    P_new[375] = t332;
-    P_new[424] = t342;
-    P_new[425] = t349;
-    P_new[426] = t350;
-    P_new[427] = t351;
-    P_new[448] = t343;
-    P_new[449] = t350;
-    P_new[450] = t356;
-    P_new[451] = t357;
-    P_new[472] = t344;
-    P_new[473] = t351;
-    P_new[474] = t357;
-    P_new[475] = t362;
-    P_new[524] = t368;
-    P_new[525] = t371;
-    P_new[526] = t372;
-    P_new[527] = t373;
-    P_new[548] = t369;
-    P_new[549] = t372;
-    P_new[550] = t374;
-    P_new[551] = t375;
-    P_new[572] = t370;
-    P_new[573] = t373;
-    P_new[574] = t375;
-    P_new[575] = t376;
-    #else
-    x_new[0] = t379;
-    x_new[1] = t380;
-    x_new[2] = t381;
-    x_new[3] = t382;
-    x_new[4] = t57;
-    x_new[5] = t58;
-    x_new[6] = t59;
-    x_new[7] = t60;
-    x_new[8] = t61;
-    x_new[9] = t62;
-    x_new[10] = t63;
-    x_new[11] = t64;
-    x_new[12] = t65;
-    x_new[13] = t66;
-    x_new[14] = t67;
-    x_new[15] = t68;
-    x_new[16] = t69;
-    x_new[17] = t70;
-    x_new[18] = t71;
-    x_new[19] = t72;
-    x_new[20] = t73;
-    x_new[21] = t74;
-    x_new[22] = t75;
-    x_new[23] = t76;
-    P_new[0] = t77;
-    P_new[1] = t78;
-    P_new[2] = t79;
-    P_new[3] = t80;
-    P_new[4] = t81;
-    P_new[5] = t82;
-    P_new[6] = t83;
-    P_new[7] = t84;
-    P_new[8] = t85;
-    P_new[9] = t86;
-    P_new[10] = t87;
-    P_new[11] = t88;
-    P_new[12] = t89;
-    P_new[13] = t90;
-    P_new[14] = t91;
-    P_new[15] = t92;
-    P_new[16] = t93;
-    P_new[17] = t94;
-    P_new[18] = t95;
-    P_new[19] = t96;
-    P_new[20] = t97;
-    P_new[21] = t98;
-    P_new[22] = t99;
-    P_new[23] = t100;
-    P_new[24] = t78;
-    P_new[25] = t101;
-    P_new[26] = t102;
-    P_new[27] = t103;
-    P_new[28] = t104;
-    P_new[29] = t105;
-    P_new[30] = t106;
-    P_new[31] = t107;
-    P_new[32] = t108;
-    P_new[33] = t109;
-    P_new[34] = t110;
-    P_new[35] = t111;
-    P_new[36] = t112;
-    P_new[37] = t113;
-    P_new[38] = t114;
-    P_new[39] = t115;
-    P_new[40] = t116;
-    P_new[41] = t117;
-    P_new[42] = t118;
-    P_new[43] = t119;
-    P_new[44] = t120;
-    P_new[45] = t121;
-    P_new[46] = t122;
-    P_new[47] = t123;
-    P_new[48] = t79;
-    P_new[49] = t102;
-    P_new[50] = t124;
-    P_new[51] = t125;
-    P_new[52] = t126;
-    P_new[53] = t127;
-    P_new[54] = t128;
-    P_new[55] = t129;
-    P_new[56] = t130;
-    P_new[57] = t131;
-    P_new[58] = t132;
-    P_new[59] = t133;
-    P_new[60] = t134;
-    P_new[61] = t135;
-    P_new[62] = t136;
-    P_new[63] = t137;
-    P_new[64] = t138;
-    P_new[65] = t139;
-    P_new[66] = t140;
-    P_new[67] = t141;
-    P_new[68] = t142;
-    P_new[69] = t143;
-    P_new[70] = t144;
-    P_new[71] = t145;
-    P_new[72] = t80;
-    P_new[73] = t103;
-    P_new[74] = t125;
-    P_new[75] = t146;
-    P_new[76] = t147;
-    P_new[77] = t148;
-    P_new[78] = t149;
-    P_new[79] = t150;
-    P_new[80] = t151;
-    P_new[81] = t152;
-    P_new[82] = t153;
-    P_new[83] = t154;
-    P_new[84] = t155;
-    P_new[85] = t156;
-    P_new[86] = t157;
-    P_new[87] = t158;
-    P_new[88] = t159;
-    P_new[89] = t160;
-    P_new[90] = t161;
-    P_new[91] = t162;
-    P_new[92] = t163;
-    P_new[93] = t164;
-    P_new[94] = t165;
-    P_new[95] = t166;
-    P_new[96] = t81;
-    P_new[97] = t104;
-    P_new[98] = t126;
-    P_new[99] = t147;
-    P_new[100] = t167;
-    P_new[101] = t168;
-    P_new[102] = t169;
-    P_new[103] = t170;
-    P_new[104] = t171;
-    P_new[105] = t172;
-    P_new[106] = t173;
-    P_new[107] = t174;
-    P_new[108] = t175;
-    P_new[109] = t176;
-    P_new[110] = t177;
-    P_new[111] = t178;
-    P_new[112] = t179;
-    P_new[113] = t180;
-    P_new[114] = t181;
-    P_new[115] = t182;
-    P_new[116] = t183;
-    P_new[117] = t184;
-    P_new[118] = t185;
-    P_new[119] = t186;
-    P_new[120] = t82;
-    P_new[121] = t105;
-    P_new[122] = t127;
-    P_new[123] = t148;
-    P_new[124] = t168;
-    P_new[125] = t187;
-    P_new[126] = t188;
-    P_new[127] = t189;
-    P_new[128] = t190;
-    P_new[129] = t191;
-    P_new[130] = t192;
-    P_new[131] = t193;
-    P_new[132] = t194;
-    P_new[133] = t195;
-    P_new[134] = t196;
-    P_new[135] = t197;
-    P_new[136] = t198;
-    P_new[137] = t199;
-    P_new[138] = t200;
-    P_new[139] = t201;
-    P_new[140] = t202;
-    P_new[141] = t203;
-    P_new[142] = t204;
-    P_new[143] = t205;
-    P_new[144] = t83;
-    P_new[145] = t106;
-    P_new[146] = t128;
-    P_new[147] = t149;
-    P_new[148] = t169;
-    P_new[149] = t188;
-    P_new[150] = t206;
-    P_new[151] = t207;
-    P_new[152] = t208;
-    P_new[153] = t209;
-    P_new[154] = t210;
-    P_new[155] = t211;
-    P_new[156] = t212;
-    P_new[157] = t213;
-    P_new[158] = t214;
-    P_new[159] = t215;
-    P_new[160] = t216;
-    P_new[161] = t217;
-    P_new[162] = t218;
-    P_new[163] = t219;
-    P_new[164] = t220;
-    P_new[165] = t221;
-    P_new[166] = t222;
-    P_new[167] = t223;
-    P_new[168] = t84;
-    P_new[169] = t107;
-    P_new[170] = t129;
-    P_new[171] = t150;
-    P_new[172] = t170;
-    P_new[173] = t189;
-    P_new[174] = t207;
-    P_new[175] = t224;
-    P_new[176] = t225;
-    P_new[177] = t226;
-    P_new[178] = t227;
-    P_new[179] = t228;
-    P_new[180] = t229;
-    P_new[181] = t230;
-    P_new[182] = t231;
-    P_new[183] = t232;
-    P_new[184] = t233;
-    P_new[185] = t234;
-    P_new[186] = t235;
-    P_new[187] = t236;
-    P_new[188] = t237;
-    P_new[189] = t238;
-    P_new[190] = t239;
-    P_new[191] = t240;
-    P_new[192] = t85;
-    P_new[193] = t108;
-    P_new[194] = t130;
-    P_new[195] = t151;
-    P_new[196] = t171;
-    P_new[197] = t190;
-    P_new[198] = t208;
-    P_new[199] = t225;
-    P_new[200] = t241;
-    P_new[201] = t242;
-    P_new[202] = t243;
-    P_new[203] = t244;
-    P_new[204] = t245;
-    P_new[205] = t246;
-    P_new[206] = t247;
-    P_new[207] = t248;
-    P_new[208] = t249;
-    P_new[209] = t250;
-    P_new[210] = t251;
-    P_new[211] = t252;
-    P_new[212] = t253;
-    P_new[213] = t254;
-    P_new[214] = t255;
-    P_new[215] = t256;
-    P_new[216] = t86;
-    P_new[217] = t109;
-    P_new[218] = t131;
-    P_new[219] = t152;
-    P_new[220] = t172;
-    P_new[221] = t191;
-    P_new[222] = t209;
-    P_new[223] = t226;
-    P_new[224] = t242;
-    P_new[225] = t257;
-    P_new[226] = t258;
-    P_new[227] = t259;
-    P_new[228] = t260;
-    P_new[229] = t261;
-    P_new[230] = t262;
-    P_new[231] = t263;
-    P_new[232] = t264;
-    P_new[233] = t265;
-    P_new[234] = t266;
-    P_new[235] = t267;
-    P_new[236] = t268;
-    P_new[237] = t269;
-    P_new[238] = t270;
-    P_new[239] = t271;
-    P_new[240] = t87;
-    P_new[241] = t110;
-    P_new[242] = t132;
-    P_new[243] = t153;
-    P_new[244] = t173;
-    P_new[245] = t192;
-    P_new[246] = t210;
-    P_new[247] = t227;
-    P_new[248] = t243;
-    P_new[249] = t258;
-    P_new[250] = t272;
-    P_new[251] = t273;
-    P_new[252] = t274;
-    P_new[253] = t275;
-    P_new[254] = t276;
-    P_new[255] = t277;
-    P_new[256] = t278;
-    P_new[257] = t279;
-    P_new[258] = t280;
-    P_new[259] = t281;
-    P_new[260] = t282;
-    P_new[261] = t283;
-    P_new[262] = t284;
-    P_new[263] = t285;
-    P_new[264] = t88;
-    P_new[265] = t111;
-    P_new[266] = t133;
-    P_new[267] = t154;
-    P_new[268] = t174;
-    P_new[269] = t193;
-    P_new[270] = t211;
-    P_new[271] = t228;
-    P_new[272] = t244;
-    P_new[273] = t259;
-    P_new[274] = t273;
-    P_new[275] = t286;
-    P_new[276] = t287;
-    P_new[277] = t288;
-    P_new[278] = t289;
-    P_new[279] = t290;
-    P_new[280] = t291;
-    P_new[281] = t292;
-    P_new[282] = t293;
-    P_new[283] = t294;
-    P_new[284] = t295;
-    P_new[285] = t296;
-    P_new[286] = t297;
-    P_new[287] = t298;
-    P_new[288] = t89;
-    P_new[289] = t112;
-    P_new[290] = t134;
-    P_new[291] = t155;
-    P_new[292] = t175;
-    P_new[293] = t194;
-    P_new[294] = t212;
-    P_new[295] = t229;
-    P_new[296] = t245;
-    P_new[297] = t260;
-    P_new[298] = t274;
-    P_new[299] = t287;
-    P_new[300] = t299;
-    P_new[301] = t300;
-    P_new[302] = t301;
-    P_new[303] = t302;
-    P_new[304] = t303;
-    P_new[305] = t304;
-    P_new[306] = t305;
-    P_new[307] = t306;
-    P_new[308] = t307;
-    P_new[309] = t308;
-    P_new[310] = t309;
-    P_new[311] = t310;
-    P_new[312] = t90;
-    P_new[313] = t113;
-    P_new[314] = t135;
-    P_new[315] = t156;
-    P_new[316] = t176;
-    P_new[317] = t195;
-    P_new[318] = t213;
-    P_new[319] = t230;
-    P_new[320] = t246;
-    P_new[321] = t261;
-    P_new[322] = t275;
-    P_new[323] = t288;
-    P_new[324] = t300;
-    P_new[325] = t311;
-    P_new[326] = t312;
-    P_new[327] = t313;
-    P_new[328] = t314;
-    P_new[329] = t315;
-    P_new[330] = t316;
-    P_new[331] = t317;
-    P_new[332] = t318;
-    P_new[333] = t319;
-    P_new[334] = t320;
-    P_new[335] = t321;
-    P_new[336] = t91;
-    P_new[337] = t114;
-    P_new[338] = t136;
-    P_new[339] = t157;
-    P_new[340] = t177;
-    P_new[341] = t196;
-    P_new[342] = t214;
-    P_new[343] = t231;
-    P_new[344] = t247;
-    P_new[345] = t262;
-    P_new[346] = t276;
-    P_new[347] = t289;
-    P_new[348] = t301;
-    P_new[349] = t312;
-    P_new[350] = t322;
-    P_new[351] = t323;
-    P_new[352] = t324;
-    P_new[353] = t325;
-    P_new[354] = t326;
-    P_new[355] = t327;
-    P_new[356] = t328;
-    P_new[357] = t329;
-    P_new[358] = t330;
-    P_new[359] = t331;
-    P_new[360] = t92;
-    P_new[361] = t115;
-    P_new[362] = t137;
-    P_new[363] = t158;
-    P_new[364] = t178;
-    P_new[365] = t197;
-    P_new[366] = t215;
-    P_new[367] = t232;
-    P_new[368] = t248;
-    P_new[369] = t263;
-    P_new[370] = t277;
-    P_new[371] = t290;
-    P_new[372] = t302;
-    P_new[373] = t313;
-    P_new[374] = t323;
-    P_new[375] = t332;
-    P_new[376] = t333;
-    P_new[377] = t334;
-    P_new[378] = t335;
-    P_new[379] = t336;
-    P_new[380] = t337;
-    P_new[381] = t338;
-    P_new[382] = t339;
-    P_new[383] = t340;
-    P_new[384] = t93;
-    P_new[385] = t116;
-    P_new[386] = t138;
-    P_new[387] = t159;
-    P_new[388] = t179;
-    P_new[389] = t198;
-    P_new[390] = t216;
-    P_new[391] = t233;
-    P_new[392] = t249;
-    P_new[393] = t264;
-    P_new[394] = t278;
-    P_new[395] = t291;
-    P_new[396] = t303;
-    P_new[397] = t314;
-    P_new[398] = t324;
-    P_new[399] = t333;
-    P_new[400] = t341;
-    P_new[401] = t342;
-    P_new[402] = t343;
-    P_new[403] = t344;
-    P_new[404] = t345;
-    P_new[405] = t346;
-    P_new[406] = t347;
-    P_new[407] = t348;
-    P_new[408] = t94;
-    P_new[409] = t117;
-    P_new[410] = t139;
-    P_new[411] = t160;
-    P_new[412] = t180;
-    P_new[413] = t199;
-    P_new[414] = t217;
-    P_new[415] = t234;
-    P_new[416] = t250;
-    P_new[417] = t265;
-    P_new[418] = t279;
-    P_new[419] = t292;
-    P_new[420] = t304;
-    P_new[421] = t315;
-    P_new[422] = t325;
-    P_new[423] = t334;
-    P_new[424] = t342;
-    P_new[425] = t349;
-    P_new[426] = t350;
-    P_new[427] = t351;
-    P_new[428] = t352;
-    P_new[429] = t353;
-    P_new[430] = t354;
-    P_new[431] = t355;
-    P_new[432] = t95;
-    P_new[433] = t118;
-    P_new[434] = t140;
-    P_new[435] = t161;
-    P_new[436] = t181;
-    P_new[437] = t200;
-    P_new[438] = t218;
-    P_new[439] = t235;
-    P_new[440] = t251;
-    P_new[441] = t266;
-    P_new[442] = t280;
-    P_new[443] = t293;
-    P_new[444] = t305;
-    P_new[445] = t316;
-    P_new[446] = t326;
-    P_new[447] = t335;
-    P_new[448] = t343;
-    P_new[449] = t350;
-    P_new[450] = t356;
-    P_new[451] = t357;
-    P_new[452] = t358;
-    P_new[453] = t359;
-    P_new[454] = t360;
-    P_new[455] = t361;
-    P_new[456] = t96;
-    P_new[457] = t119;
-    P_new[458] = t141;
-    P_new[459] = t162;
-    P_new[460] = t182;
-    P_new[461] = t201;
-    P_new[462] = t219;
-    P_new[463] = t236;
-    P_new[464] = t252;
-    P_new[465] = t267;
-    P_new[466] = t281;
-    P_new[467] = t294;
-    P_new[468] = t306;
-    P_new[469] = t317;
-    P_new[470] = t327;
-    P_new[471] = t336;
-    P_new[472] = t344;
-    P_new[473] = t351;
-    P_new[474] = t357;
-    P_new[475] = t362;
-    P_new[476] = t363;
-    P_new[477] = t364;
-    P_new[478] = t365;
-    P_new[479] = t366;
-    P_new[480] = t97;
-    P_new[481] = t120;
-    P_new[482] = t142;
-    P_new[483] = t163;
-    P_new[484] = t183;
-    P_new[485] = t202;
-    P_new[486] = t220;
-    P_new[487] = t237;
-    P_new[488] = t253;
-    P_new[489] = t268;
-    P_new[490] = t282;
-    P_new[491] = t295;
-    P_new[492] = t307;
-    P_new[493] = t318;
-    P_new[494] = t328;
-    P_new[495] = t337;
-    P_new[496] = t345;
-    P_new[497] = t352;
-    P_new[498] = t358;
-    P_new[499] = t363;
-    P_new[500] = t367;
-    P_new[501] = t368;
-    P_new[502] = t369;
-    P_new[503] = t370;
-    P_new[504] = t98;
-    P_new[505] = t121;
-    P_new[506] = t143;
-    P_new[507] = t164;
-    P_new[508] = t184;
-    P_new[509] = t203;
-    P_new[510] = t221;
-    P_new[511] = t238;
-    P_new[512] = t254;
-    P_new[513] = t269;
-    P_new[514] = t283;
-    P_new[515] = t296;
-    P_new[516] = t308;
-    P_new[517] = t319;
-    P_new[518] = t329;
-    P_new[519] = t338;
-    P_new[520] = t346;
-    P_new[521] = t353;
-    P_new[522] = t359;
-    P_new[523] = t364;
-    P_new[524] = t368;
-    P_new[525] = t371;
-    P_new[526] = t372;
-    P_new[527] = t373;
-    P_new[528] = t99;
-    P_new[529] = t122;
-    P_new[530] = t144;
-    P_new[531] = t165;
-    P_new[532] = t185;
-    P_new[533] = t204;
-    P_new[534] = t222;
-    P_new[535] = t239;
-    P_new[536] = t255;
-    P_new[537] = t270;
-    P_new[538] = t284;
-    P_new[539] = t297;
-    P_new[540] = t309;
-    P_new[541] = t320;
-    P_new[542] = t330;
-    P_new[543] = t339;
-    P_new[544] = t347;
-    P_new[545] = t354;
-    P_new[546] = t360;
-    P_new[547] = t365;
-    P_new[548] = t369;
-    P_new[549] = t372;
-    P_new[550] = t374;
-    P_new[551] = t375;
-    P_new[552] = t100;
-    P_new[553] = t123;
-    P_new[554] = t145;
-    P_new[555] = t166;
-    P_new[556] = t186;
-    P_new[557] = t205;
-    P_new[558] = t223;
-    P_new[559] = t240;
-    P_new[560] = t256;
-    P_new[561] = t271;
-    P_new[562] = t285;
-    P_new[563] = t298;
-    P_new[564] = t310;
-    P_new[565] = t321;
-    P_new[566] = t331;
-    P_new[567] = t340;
-    P_new[568] = t348;
-    P_new[569] = t355;
-    P_new[570] = t361;
-    P_new[571] = t366;
-    P_new[572] = t370;
-    P_new[573] = t373;
-    P_new[574] = t375;
-    P_new[575] = t376;
+    *(derive_vd_unaligned *)&P_new[0] = v_t53;
+    #else
+    const double t53 = DERIVE_FMA(t5, P[216], P[0]);
+    const double t54 = DERIVE_FMA(t5, P[217], P[1]);
+    const double t55 = DERIVE_FMA(t5, P[218], P[2]);
+    const double t56 = DERIVE_FMA(t5, P[219], P[3]);
+    P_new[0] = t53;
+    P_new[1] = t54;
+    P_new[24] = t54;
+    P_new[2] = t55;
+    P_new[48] = t55;
+    P_new[3] = t56;
+    P_new[72] = t56;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t57 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
+    #else
+    const double t57 = DERIVE_FMA(t5, P[220], P[4]);
+    const double t58 = DERIVE_FMA(t5, P[221], P[5]);
+    const double t59 = DERIVE_FMA(t5, P[222], P[6]);
+    const double t60 = DERIVE_FMA(t5, P[223], P[7]);
+    P_new[4] = t57;
+    P_new[96] = t57;
+    P_new[5] = t58;
+    P_new[120] = t58;
+    P_new[6] = t59;
+    P_new[144] = t59;
+    P_new[7] = t60;
+    P_new[168] = t60;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t61 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
+    #else
+    const double t61 = DERIVE_FMA(t5, P[224], P[8]);
+    const double t62 = DERIVE_FMA(t5, P[225], P[9]);
+    const double t63 = DERIVE_FMA(t5, P[226], P[10]);
+    const double t64 = DERIVE_FMA(t5, P[227], P[11]);
+    P_new[8] = t61;
+    P_new[192] = t61;
+    P_new[9] = t62;
+    P_new[216] = t62;
+    P_new[10] = t63;
+    P_new[240] = t63;
+    P_new[11] = t64;
+    P_new[264] = t64;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t65 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
+    #else
+    const double t65 = DERIVE_FMA(t5, P[228], P[12]);
+    const double t66 = DERIVE_FMA(t5, P[229], P[13]);
+    const double t67 = DERIVE_FMA(t5, P[230], P[14]);
+    const double t68 = DERIVE_FMA(t5, P[231], P[15]);
+    P_new[12] = t65;
+    P_new[288] = t65;
+    P_new[13] = t66;
+    P_new[312] = t66;
+    P_new[14] = t67;
+    P_new[336] = t67;
+    P_new[15] = t68;
+    P_new[360] = t68;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t69 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
+    #else
+    const double t69 = DERIVE_FMA(t5, P[232], P[16]);
+    const double t70 = DERIVE_FMA(t5, P[233], P[17]);
+    const double t71 = DERIVE_FMA(t5, P[234], P[18]);
+    const double t72 = DERIVE_FMA(t5, P[235], P[19]);
+    P_new[16] = t69;
+    P_new[384] = t69;
+    P_new[17] = t70;
+    P_new[408] = t70;
+    P_new[18] = t71;
+    P_new[432] = t71;
+    P_new[19] = t72;
+    P_new[456] = t72;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t73 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
+    #else
+    const double t73 = DERIVE_FMA(t5, P[236], P[20]);
+    const double t74 = DERIVE_FMA(t5, P[237], P[21]);
+    const double t75 = DERIVE_FMA(t5, P[238], P[22]);
+    const double t76 = DERIVE_FMA(t5, P[239], P[23]);
+    P_new[20] = t73;
+    P_new[480] = t73;
+    P_new[21] = t74;
+    P_new[504] = t74;
+    P_new[22] = t75;
+    P_new[528] = t75;
+    P_new[23] = t76;
+    P_new[552] = t76;
+    #endif
+    const double t77 = DERIVE_FMA(P[217], t6, P[25]);
+    const double t78 = DERIVE_FMA(P[218], t6, P[26]);
+    const double t79 = DERIVE_FMA(P[219], t6, P[27]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t80 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
+    #else
+    const double t80 = DERIVE_FMA(t6, P[220], P[28]);
+    const double t81 = DERIVE_FMA(t6, P[221], P[29]);
+    const double t82 = DERIVE_FMA(t6, P[222], P[30]);
+    const double t83 = DERIVE_FMA(t6, P[223], P[31]);
+    P_new[28] = t80;
+    P_new[97] = t80;
+    P_new[29] = t81;
+    P_new[121] = t81;
+    P_new[30] = t82;
+    P_new[145] = t82;
+    P_new[31] = t83;
+    P_new[169] = t83;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t84 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
+    #else
+    const double t84 = DERIVE_FMA(t6, P[224], P[32]);
+    const double t85 = DERIVE_FMA(t6, P[225], P[33]);
+    const double t86 = DERIVE_FMA(t6, P[226], P[34]);
+    const double t87 = DERIVE_FMA(t6, P[227], P[35]);
+    P_new[32] = t84;
+    P_new[193] = t84;
+    P_new[33] = t85;
+    P_new[217] = t85;
+    P_new[34] = t86;
+    P_new[241] = t86;
+    P_new[35] = t87;
+    P_new[265] = t87;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t88 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    #else
+    const double t88 = DERIVE_FMA(t6, P[228], P[36]);
+    const double t89 = DERIVE_FMA(t6, P[229], P[37]);
+    const double t90 = DERIVE_FMA(t6, P[230], P[38]);
+    const double t91 = DERIVE_FMA(t6, P[231], P[39]);
+    P_new[36] = t88;
+    P_new[289] = t88;
+    P_new[37] = t89;
+    P_new[313] = t89;
+    P_new[38] = t90;
+    P_new[337] = t90;
+    P_new[39] = t91;
+    P_new[361] = t91;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t92 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    #else
+    const double t92 = DERIVE_FMA(t6, P[232], P[40]);
+    const double t93 = DERIVE_FMA(t6, P[233], P[41]);
+    const double t94 = DERIVE_FMA(t6, P[234], P[42]);
+    const double t95 = DERIVE_FMA(t6, P[235], P[43]);
+    P_new[40] = t92;
+    P_new[385] = t92;
+    P_new[41] = t93;
+    P_new[409] = t93;
+    P_new[42] = t94;
+    P_new[433] = t94;
+    P_new[43] = t95;
+    P_new[457] = t95;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t96 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    #else
+    const double t96 = DERIVE_FMA(t6, P[236], P[44]);
+    const double t97 = DERIVE_FMA(t6, P[237], P[45]);
+    const double t98 = DERIVE_FMA(t6, P[238], P[46]);
+    const double t99 = DERIVE_FMA(t6, P[239], P[47]);
+    P_new[44] = t96;
+    P_new[481] = t96;
+    P_new[45] = t97;
+    P_new[505] = t97;
+    P_new[46] = t98;
+    P_new[529] = t98;
+    P_new[47] = t99;
+    P_new[553] = t99;
+    #endif
+    const double t100 = DERIVE_FMA(P[218], t7, P[50]);
+    const double t101 = DERIVE_FMA(P[219], t7, P[51]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t102 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
+    #else
+    const double t102 = DERIVE_FMA(t7, P[220], P[52]);
+    const double t103 = DERIVE_FMA(t7, P[221], P[53]);
+    const double t104 = DERIVE_FMA(t7, P[222], P[54]);
+    const double t105 = DERIVE_FMA(t7, P[223], P[55]);
+    P_new[52] = t102;
+    P_new[98] = t102;
+    P_new[53] = t103;
+    P_new[122] = t103;
+    P_new[54] = t104;
+    P_new[146] = t104;
+    P_new[55] = t105;
+    P_new[170] = t105;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t106 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    #else
+    const double t106 = DERIVE_FMA(t7, P[224], P[56]);
+    const double t107 = DERIVE_FMA(t7, P[225], P[57]);
+    const double t108 = DERIVE_FMA(t7, P[226], P[58]);
+    const double t109 = DERIVE_FMA(t7, P[227], P[59]);
+    P_new[56] = t106;
+    P_new[194] = t106;
+    P_new[57] = t107;
+    P_new[218] = t107;
+    P_new[58] = t108;
+    P_new[242] = t108;
+    P_new[59] = t109;
+    P_new[266] = t109;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t110 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    #else
+    const double t110 = DERIVE_FMA(t7, P[228], P[60]);
+    const double t111 = DERIVE_FMA(t7, P[229], P[61]);
+    const double t112 = DERIVE_FMA(t7, P[230], P[62]);
+    const double t113 = DERIVE_FMA(t7, P[231], P[63]);
+    P_new[60] = t110;
+    P_new[290] = t110;
+    P_new[61] = t111;
+    P_new[314] = t111;
+    P_new[62] = t112;
+    P_new[338] = t112;
+    P_new[63] = t113;
+    P_new[362] = t113;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t114 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    #else
+    const double t114 = DERIVE_FMA(t7, P[232], P[64]);
+    const double t115 = DERIVE_FMA(t7, P[233], P[65]);
+    const double t116 = DERIVE_FMA(t7, P[234], P[66]);
+    const double t117 = DERIVE_FMA(t7, P[235], P[67]);
+    P_new[64] = t114;
+    P_new[386] = t114;
+    P_new[65] = t115;
+    P_new[410] = t115;
+    P_new[66] = t116;
+    P_new[434] = t116;
+    P_new[67] = t117;
+    P_new[458] = t117;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t118 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    #else
+    const double t118 = DERIVE_FMA(t7, P[236], P[68]);
+    const double t119 = DERIVE_FMA(t7, P[237], P[69]);
+    const double t120 = DERIVE_FMA(t7, P[238], P[70]);
+    const double t121 = DERIVE_FMA(t7, P[239], P[71]);
+    P_new[68] = t118;
+    P_new[482] = t118;
+    P_new[69] = t119;
+    P_new[506] = t119;
+    P_new[70] = t120;
+    P_new[530] = t120;
+    P_new[71] = t121;
+    P_new[554] = t121;
+    #endif
+    const double t122 = DERIVE_FMA(P[219], t8, P[75]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t123 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd tr_v_t57_0 = __builtin_shufflevector(v_t57, v_t80, 0, 4, 2, 6);
+    const derive_vd tr_v_t57_1 = __builtin_shufflevector(v_t57, v_t80, 1, 5, 3, 7);
+    const derive_vd tr_v_t57_2 = __builtin_shufflevector(v_t102, v_t123, 0, 4, 2, 6);
+    const derive_vd tr_v_t57_3 = __builtin_shufflevector(v_t102, v_t123, 1, 5, 3, 7);
+    const derive_vd tr_v_t57_c0 = __builtin_shufflevector(tr_v_t57_0, tr_v_t57_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t57_c1 = __builtin_shufflevector(tr_v_t57_1, tr_v_t57_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t57_c2 = __builtin_shufflevector(tr_v_t57_0, tr_v_t57_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t57_c3 = __builtin_shufflevector(tr_v_t57_1, tr_v_t57_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t57;
+    *(derive_vd_unaligned *)&P_new[28] = v_t80;
+    *(derive_vd_unaligned *)&P_new[52] = v_t102;
+    *(derive_vd_unaligned *)&P_new[76] = v_t123;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t57_c0;
+    *(derive_vd_unaligned *)&P_new[120] = tr_v_t57_c1;
+    *(derive_vd_unaligned *)&P_new[144] = tr_v_t57_c2;
+    *(derive_vd_unaligned *)&P_new[168] = tr_v_t57_c3;
+    #else
+    const double t123 = DERIVE_FMA(t8, P[220], P[76]);
+    const double t124 = DERIVE_FMA(t8, P[221], P[77]);
+    const double t125 = DERIVE_FMA(t8, P[222], P[78]);
+    const double t126 = DERIVE_FMA(t8, P[223], P[79]);
+    P_new[76] = t123;
+    P_new[99] = t123;
+    P_new[77] = t124;
+    P_new[123] = t124;
+    P_new[78] = t125;
+    P_new[147] = t125;
+    P_new[79] = t126;
+    P_new[171] = t126;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t127 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd tr_v_t61_0 = __builtin_shufflevector(v_t61, v_t84, 0, 4, 2, 6);
+    const derive_vd tr_v_t61_1 = __builtin_shufflevector(v_t61, v_t84, 1, 5, 3, 7);
+    const derive_vd tr_v_t61_2 = __builtin_shufflevector(v_t106, v_t127, 0, 4, 2, 6);
+    const derive_vd tr_v_t61_3 = __builtin_shufflevector(v_t106, v_t127, 1, 5, 3, 7);
+    const derive_vd tr_v_t61_c0 = __builtin_shufflevector(tr_v_t61_0, tr_v_t61_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t61_c1 = __builtin_shufflevector(tr_v_t61_1, tr_v_t61_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t61_c2 = __builtin_shufflevector(tr_v_t61_0, tr_v_t61_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t61_c3 = __builtin_shufflevector(tr_v_t61_1, tr_v_t61_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[8] = v_t61;
+    *(derive_vd_unaligned *)&P_new[32] = v_t84;
+    *(derive_vd_unaligned *)&P_new[56] = v_t106;
+    *(derive_vd_unaligned *)&P_new[80] = v_t127;
+    *(derive_vd_unaligned *)&P_new[192] = tr_v_t61_c0;
+    *(derive_vd_unaligned *)&P_new[216] = tr_v_t61_c1;
+    *(derive_vd_unaligned *)&P_new[240] = tr_v_t61_c2;
+    *(derive_vd_unaligned *)&P_new[264] = tr_v_t61_c3;
+    #else
+    const double t127 = DERIVE_FMA(t8, P[224], P[80]);
+    const double t128 = DERIVE_FMA(t8, P[225], P[81]);
+    const double t129 = DERIVE_FMA(t8, P[226], P[82]);
+    const double t130 = DERIVE_FMA(t8, P[227], P[83]);
+    P_new[80] = t127;
+    P_new[195] = t127;
+    P_new[81] = t128;
+    P_new[219] = t128;
+    P_new[82] = t129;
+    P_new[243] = t129;
+    P_new[83] = t130;
+    P_new[267] = t130;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd tr_v_t65_0 = __builtin_shufflevector(v_t65, v_t88, 0, 4, 2, 6);
+    const derive_vd tr_v_t65_1 = __builtin_shufflevector(v_t65, v_t88, 1, 5, 3, 7);
+    const derive_vd tr_v_t65_2 = __builtin_shufflevector(v_t110, v_t131, 0, 4, 2, 6);
+    const derive_vd tr_v_t65_3 = __builtin_shufflevector(v_t110, v_t131, 1, 5, 3, 7);
+    const derive_vd tr_v_t65_c0 = __builtin_shufflevector(tr_v_t65_0, tr_v_t65_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t65_c1 = __builtin_shufflevector(tr_v_t65_1, tr_v_t65_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t65_c2 = __builtin_shufflevector(tr_v_t65_0, tr_v_t65_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t65_c3 = __builtin_shufflevector(tr_v_t65_1, tr_v_t65_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t65;
+    *(derive_vd_unaligned *)&P_new[36] = v_t88;
+    *(derive_vd_unaligned *)&P_new[60] = v_t110;
+    *(derive_vd_unaligned *)&P_new[84] = v_t131;
+    *(derive_vd_unaligned *)&P_new[288] = tr_v_t65_c0;
+    *(derive_vd_unaligned *)&P_new[312] = tr_v_t65_c1;
+    *(derive_vd_unaligned *)&P_new[336] = tr_v_t65_c2;
+    *(derive_vd_unaligned *)&P_new[360] = tr_v_t65_c3;
+    #else
+    const double t131 = DERIVE_FMA(t8, P[228], P[84]);
+    const double t132 = DERIVE_FMA(t8, P[229], P[85]);
+    const double t133 = DERIVE_FMA(t8, P[230], P[86]);
+    const double t134 = DERIVE_FMA(t8, P[231], P[87]);
+    P_new[84] = t131;
+    P_new[291] = t131;
+    P_new[85] = t132;
+    P_new[315] = t132;
+    P_new[86] = t133;
+    P_new[339] = t133;
+    P_new[87] = t134;
+    P_new[363] = t134;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t135 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd tr_v_t69_0 = __builtin_shufflevector(v_t69, v_t92, 0, 4, 2, 6);
+    const derive_vd tr_v_t69_1 = __builtin_shufflevector(v_t69, v_t92, 1, 5, 3, 7);
+    const derive_vd tr_v_t69_2 = __builtin_shufflevector(v_t114, v_t135, 0, 4, 2, 6);
+    const derive_vd tr_v_t69_3 = __builtin_shufflevector(v_t114, v_t135, 1, 5, 3, 7);
+    const derive_vd tr_v_t69_c0 = __builtin_shufflevector(tr_v_t69_0, tr_v_t69_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t69_c1 = __builtin_shufflevector(tr_v_t69_1, tr_v_t69_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t69_c2 = __builtin_shufflevector(tr_v_t69_0, tr_v_t69_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t69_c3 = __builtin_shufflevector(tr_v_t69_1, tr_v_t69_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[16] = v_t69;
+    *(derive_vd_unaligned *)&P_new[40] = v_t92;
+    *(derive_vd_unaligned *)&P_new[64] = v_t114;
+    *(derive_vd_unaligned *)&P_new[88] = v_t135;
+    *(derive_vd_unaligned *)&P_new[384] = tr_v_t69_c0;
+    *(derive_vd_unaligned *)&P_new[408] = tr_v_t69_c1;
+    *(derive_vd_unaligned *)&P_new[432] = tr_v_t69_c2;
+    *(derive_vd_unaligned *)&P_new[456] = tr_v_t69_c3;
+    #else
+    const double t135 = DERIVE_FMA(t8, P[232], P[88]);
+    const double t136 = DERIVE_FMA(t8, P[233], P[89]);
+    const double t137 = DERIVE_FMA(t8, P[234], P[90]);
+    const double t138 = DERIVE_FMA(t8, P[235], P[91]);
+    P_new[88] = t135;
+    P_new[387] = t135;
+    P_new[89] = t136;
+    P_new[411] = t136;
+    P_new[90] = t137;
+    P_new[435] = t137;
+    P_new[91] = t138;
+    P_new[459] = t138;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t139 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd tr_v_t73_0 = __builtin_shufflevector(v_t73, v_t96, 0, 4, 2, 6);
+    const derive_vd tr_v_t73_1 = __builtin_shufflevector(v_t73, v_t96, 1, 5, 3, 7);
+    const derive_vd tr_v_t73_2 = __builtin_shufflevector(v_t118, v_t139, 0, 4, 2, 6);
+    const derive_vd tr_v_t73_3 = __builtin_shufflevector(v_t118, v_t139, 1, 5, 3, 7);
+    const derive_vd tr_v_t73_c0 = __builtin_shufflevector(tr_v_t73_0, tr_v_t73_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t73_c1 = __builtin_shufflevector(tr_v_t73_1, tr_v_t73_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t73_c2 = __builtin_shufflevector(tr_v_t73_0, tr_v_t73_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t73_c3 = __builtin_shufflevector(tr_v_t73_1, tr_v_t73_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[20] = v_t73;
+    *(derive_vd_unaligned *)&P_new[44] = v_t96;
+    *(derive_vd_unaligned *)&P_new[68] = v_t118;
+    *(derive_vd_unaligned *)&P_new[92] = v_t139;
+    *(derive_vd_unaligned *)&P_new[480] = tr_v_t73_c0;
+    *(derive_vd_unaligned *)&P_new[504] = tr_v_t73_c1;
+    *(derive_vd_unaligned *)&P_new[528] = tr_v_t73_c2;
+    *(derive_vd_unaligned *)&P_new[552] = tr_v_t73_c3;
+    #else
+    const double t139 = DERIVE_FMA(t8, P[236], P[92]);
+    const double t140 = DERIVE_FMA(t8, P[237], P[93]);
+    const double t141 = DERIVE_FMA(t8, P[238], P[94]);
+    const double t142 = DERIVE_FMA(t8, P[239], P[95]);
+    P_new[92] = t139;
+    P_new[483] = t139;
+    P_new[93] = t140;
+    P_new[507] = t140;
+    P_new[94] = t141;
+    P_new[531] = t141;
+    P_new[95] = t142;
+    P_new[555] = t142;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t143 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const double t144 = v_t143[1];
+    const double t145 = v_t143[2];
+    const double t146 = v_t143[3];
+    *(derive_vd_unaligned *)&P_new[100] = v_t143;
+    #else
+    const double t143 = DERIVE_FMA(t9, P[220], P[100]);
+    const double t144 = DERIVE_FMA(t9, P[221], P[101]);
+    const double t145 = DERIVE_FMA(t9, P[222], P[102]);
+    const double t146 = DERIVE_FMA(t9, P[223], P[103]);
+    P_new[100] = t143;
+    P_new[101] = t144;
+    P_new[124] = t144;
+    P_new[102] = t145;
+    P_new[148] = t145;
+    P_new[103] = t146;
+    P_new[172] = t146;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    #else
+    const double t147 = DERIVE_FMA(t9, P[224], P[104]);
+    const double t148 = DERIVE_FMA(t9, P[225], P[105]);
+    const double t149 = DERIVE_FMA(t9, P[226], P[106]);
+    const double t150 = DERIVE_FMA(t9, P[227], P[107]);
+    P_new[104] = t147;
+    P_new[196] = t147;
+    P_new[105] = t148;
+    P_new[220] = t148;
+    P_new[106] = t149;
+    P_new[244] = t149;
+    P_new[107] = t150;
+    P_new[268] = t150;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    #else
+    const double t151 = DERIVE_FMA(t9, P[228], P[108]);
+    const double t152 = DERIVE_FMA(t9, P[229], P[109]);
+    const double t153 = DERIVE_FMA(t9, P[230], P[110]);
+    const double t154 = DERIVE_FMA(t9, P[231], P[111]);
+    P_new[108] = t151;
+    P_new[292] = t151;
+    P_new[109] = t152;
+    P_new[316] = t152;
+    P_new[110] = t153;
+    P_new[340] = t153;
+    P_new[111] = t154;
+    P_new[364] = t154;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    #else
+    const double t155 = DERIVE_FMA(t9, P[232], P[112]);
+    const double t156 = DERIVE_FMA(t9, P[233], P[113]);
+    const double t157 = DERIVE_FMA(t9, P[234], P[114]);
+    const double t158 = DERIVE_FMA(t9, P[235], P[115]);
+    P_new[112] = t155;
+    P_new[388] = t155;
+    P_new[113] = t156;
+    P_new[412] = t156;
+    P_new[114] = t157;
+    P_new[436] = t157;
+    P_new[115] = t158;
+    P_new[460] = t158;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    #else
+    const double t159 = DERIVE_FMA(t9, P[236], P[116]);
+    const double t160 = DERIVE_FMA(t9, P[237], P[117]);
+    const double t161 = DERIVE_FMA(t9, P[238], P[118]);
+    const double t162 = DERIVE_FMA(t9, P[239], P[119]);
+    P_new[116] = t159;
+    P_new[484] = t159;
+    P_new[117] = t160;
+    P_new[508] = t160;
+    P_new[118] = t161;
+    P_new[532] = t161;
+    P_new[119] = t162;
+    P_new[556] = t162;
+    #endif
+    const double t163 = DERIVE_FMA(P[221], t10, P[125]);
+    const double t164 = DERIVE_FMA(P[222], t10, P[126]);
+    const double t165 = DERIVE_FMA(P[223], t10, P[127]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t166 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    #else
+    const double t166 = DERIVE_FMA(t10, P[224], P[128]);
+    const double t167 = DERIVE_FMA(t10, P[225], P[129]);
+    const double t168 = DERIVE_FMA(t10, P[226], P[130]);
+    const double t169 = DERIVE_FMA(t10, P[227], P[131]);
+    P_new[128] = t166;
+    P_new[197] = t166;
+    P_new[129] = t167;
+    P_new[221] = t167;
+    P_new[130] = t168;
+    P_new[245] = t168;
+    P_new[131] = t169;
+    P_new[269] = t169;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t170 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    #else
+    const double t170 = DERIVE_FMA(t10, P[228], P[132]);
+    const double t171 = DERIVE_FMA(t10, P[229], P[133]);
+    const double t172 = DERIVE_FMA(t10, P[230], P[134]);
+    const double t173 = DERIVE_FMA(t10, P[231], P[135]);
+    P_new[132] = t170;
+    P_new[293] = t170;
+    P_new[133] = t171;
+    P_new[317] = t171;
+    P_new[134] = t172;
+    P_new[341] = t172;
+    P_new[135] = t173;
+    P_new[365] = t173;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t174 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    #else
+    const double t174 = DERIVE_FMA(t10, P[232], P[136]);
+    const double t175 = DERIVE_FMA(t10, P[233], P[137]);
+    const double t176 = DERIVE_FMA(t10, P[234], P[138]);
+    const double t177 = DERIVE_FMA(t10, P[235], P[139]);
+    P_new[136] = t174;
+    P_new[389] = t174;
+    P_new[137] = t175;
+    P_new[413] = t175;
+    P_new[138] = t176;
+    P_new[437] = t176;
+    P_new[139] = t177;
+    P_new[461] = t177;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t178 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    #else
+    const double t178 = DERIVE_FMA(t10, P[236], P[140]);
+    const double t179 = DERIVE_FMA(t10, P[237], P[141]);
+    const double t180 = DERIVE_FMA(t10, P[238], P[142]);
+    const double t181 = DERIVE_FMA(t10, P[239], P[143]);
+    P_new[140] = t178;
+    P_new[485] = t178;
+    P_new[141] = t179;
+    P_new[509] = t179;
+    P_new[142] = t180;
+    P_new[533] = t180;
+    P_new[143] = t181;
+    P_new[557] = t181;
+    #endif
+    const double t182 = DERIVE_FMA(P[222], t11, P[150]);
+    const double t183 = DERIVE_FMA(P[223], t11, P[151]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t184 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    #else
+    const double t184 = DERIVE_FMA(t11, P[224], P[152]);
+    const double t185 = DERIVE_FMA(t11, P[225], P[153]);
+    const double t186 = DERIVE_FMA(t11, P[226], P[154]);
+    const double t187 = DERIVE_FMA(t11, P[227], P[155]);
+    P_new[152] = t184;
+    P_new[198] = t184;
+    P_new[153] = t185;
+    P_new[222] = t185;
+    P_new[154] = t186;
+    P_new[246] = t186;
+    P_new[155] = t187;
+    P_new[270] = t187;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t188 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    #else
+    const double t188 = DERIVE_FMA(t11, P[228], P[156]);
+    const double t189 = DERIVE_FMA(t11, P[229], P[157]);
+    const double t190 = DERIVE_FMA(t11, P[230], P[158]);
+    const double t191 = DERIVE_FMA(t11, P[231], P[159]);
+    P_new[156] = t188;
+    P_new[294] = t188;
+    P_new[157] = t189;
+    P_new[318] = t189;
+    P_new[158] = t190;
+    P_new[342] = t190;
+    P_new[159] = t191;
+    P_new[366] = t191;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t192 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
+    #else
+    const double t192 = DERIVE_FMA(t11, P[232], P[160]);
+    const double t193 = DERIVE_FMA(t11, P[233], P[161]);
+    const double t194 = DERIVE_FMA(t11, P[234], P[162]);
+    const double t195 = DERIVE_FMA(t11, P[235], P[163]);
+    P_new[160] = t192;
+    P_new[390] = t192;
+    P_new[161] = t193;
+    P_new[414] = t193;
+    P_new[162] = t194;
+    P_new[438] = t194;
+    P_new[163] = t195;
+    P_new[462] = t195;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t196 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
+    #else
+    const double t196 = DERIVE_FMA(t11, P[236], P[164]);
+    const double t197 = DERIVE_FMA(t11, P[237], P[165]);
+    const double t198 = DERIVE_FMA(t11, P[238], P[166]);
+    const double t199 = DERIVE_FMA(t11, P[239], P[167]);
+    P_new[164] = t196;
+    P_new[486] = t196;
+    P_new[165] = t197;
+    P_new[510] = t197;
+    P_new[166] = t198;
+    P_new[534] = t198;
+    P_new[167] = t199;
+    P_new[558] = t199;
+    #endif
+    const double t200 = DERIVE_FMA(P[223], t12, P[175]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t201 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd tr_v_t147_0 = __builtin_shufflevector(v_t147, v_t166, 0, 4, 2, 6);
+    const derive_vd tr_v_t147_1 = __builtin_shufflevector(v_t147, v_t166, 1, 5, 3, 7);
+    const derive_vd tr_v_t147_2 = __builtin_shufflevector(v_t184, v_t201, 0, 4, 2, 6);
+    const derive_vd tr_v_t147_3 = __builtin_shufflevector(v_t184, v_t201, 1, 5, 3, 7);
+    const derive_vd tr_v_t147_c0 = __builtin_shufflevector(tr_v_t147_0, tr_v_t147_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t147_c1 = __builtin_shufflevector(tr_v_t147_1, tr_v_t147_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t147_c2 = __builtin_shufflevector(tr_v_t147_0, tr_v_t147_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t147_c3 = __builtin_shufflevector(tr_v_t147_1, tr_v_t147_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[104] = v_t147;
+    *(derive_vd_unaligned *)&P_new[128] = v_t166;
+    *(derive_vd_unaligned *)&P_new[152] = v_t184;
+    *(derive_vd_unaligned *)&P_new[176] = v_t201;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t147_c0;
+    *(derive_vd_unaligned *)&P_new[220] = tr_v_t147_c1;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t147_c2;
+    *(derive_vd_unaligned *)&P_new[268] = tr_v_t147_c3;
+    #else
+    const double t201 = DERIVE_FMA(t12, P[224], P[176]);
+    const double t202 = DERIVE_FMA(t12, P[225], P[177]);
+    const double t203 = DERIVE_FMA(t12, P[226], P[178]);
+    const double t204 = DERIVE_FMA(t12, P[227], P[179]);
+    P_new[176] = t201;
+    P_new[199] = t201;
+    P_new[177] = t202;
+    P_new[223] = t202;
+    P_new[178] = t203;
+    P_new[247] = t203;
+    P_new[179] = t204;
+    P_new[271] = t204;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t205 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd tr_v_t151_0 = __builtin_shufflevector(v_t151, v_t170, 0, 4, 2, 6);
+    const derive_vd tr_v_t151_1 = __builtin_shufflevector(v_t151, v_t170, 1, 5, 3, 7);
+    const derive_vd tr_v_t151_2 = __builtin_shufflevector(v_t188, v_t205, 0, 4, 2, 6);
+    const derive_vd tr_v_t151_3 = __builtin_shufflevector(v_t188, v_t205, 1, 5, 3, 7);
+    const derive_vd tr_v_t151_c0 = __builtin_shufflevector(tr_v_t151_0, tr_v_t151_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t151_c1 = __builtin_shufflevector(tr_v_t151_1, tr_v_t151_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t151_c2 = __builtin_shufflevector(tr_v_t151_0, tr_v_t151_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t151_c3 = __builtin_shufflevector(tr_v_t151_1, tr_v_t151_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[108] = v_t151;
+    *(derive_vd_unaligned *)&P_new[132] = v_t170;
+    *(derive_vd_unaligned *)&P_new[156] = v_t188;
+    *(derive_vd_unaligned *)&P_new[180] = v_t205;
+    *(derive_vd_unaligned *)&P_new[292] = tr_v_t151_c0;
+    *(derive_vd_unaligned *)&P_new[316] = tr_v_t151_c1;
+    *(derive_vd_unaligned *)&P_new[340] = tr_v_t151_c2;
+    *(derive_vd_unaligned *)&P_new[364] = tr_v_t151_c3;
+    #else
+    const double t205 = DERIVE_FMA(t12, P[228], P[180]);
+    const double t206 = DERIVE_FMA(t12, P[229], P[181]);
+    const double t207 = DERIVE_FMA(t12, P[230], P[182]);
+    const double t208 = DERIVE_FMA(t12, P[231], P[183]);
+    P_new[180] = t205;
+    P_new[295] = t205;
+    P_new[181] = t206;
+    P_new[319] = t206;
+    P_new[182] = t207;
+    P_new[343] = t207;
+    P_new[183] = t208;
+    P_new[367] = t208;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t209 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd tr_v_t155_0 = __builtin_shufflevector(v_t155, v_t174, 0, 4, 2, 6);
+    const derive_vd tr_v_t155_1 = __builtin_shufflevector(v_t155, v_t174, 1, 5, 3, 7);
+    const derive_vd tr_v_t155_2 = __builtin_shufflevector(v_t192, v_t209, 0, 4, 2, 6);
+    const derive_vd tr_v_t155_3 = __builtin_shufflevector(v_t192, v_t209, 1, 5, 3, 7);
+    const derive_vd tr_v_t155_c0 = __builtin_shufflevector(tr_v_t155_0, tr_v_t155_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t155_c1 = __builtin_shufflevector(tr_v_t155_1, tr_v_t155_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t155_c2 = __builtin_shufflevector(tr_v_t155_0, tr_v_t155_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t155_c3 = __builtin_shufflevector(tr_v_t155_1, tr_v_t155_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[112] = v_t155;
+    *(derive_vd_unaligned *)&P_new[136] = v_t174;
+    *(derive_vd_unaligned *)&P_new[160] = v_t192;
+    *(derive_vd_unaligned *)&P_new[184] = v_t209;
+    *(derive_vd_unaligned *)&P_new[388] = tr_v_t155_c0;
+    *(derive_vd_unaligned *)&P_new[412] = tr_v_t155_c1;
+    *(derive_vd_unaligned *)&P_new[436] = tr_v_t155_c2;
+    *(derive_vd_unaligned *)&P_new[460] = tr_v_t155_c3;
+    #else
+    const double t209 = DERIVE_FMA(t12, P[232], P[184]);
+    const double t210 = DERIVE_FMA(t12, P[233], P[185]);
+    const double t211 = DERIVE_FMA(t12, P[234], P[186]);
+    const double t212 = DERIVE_FMA(t12, P[235], P[187]);
+    P_new[184] = t209;
+    P_new[391] = t209;
+    P_new[185] = t210;
+    P_new[415] = t210;
+    P_new[186] = t211;
+    P_new[439] = t211;
+    P_new[187] = t212;
+    P_new[463] = t212;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t213 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd tr_v_t159_0 = __builtin_shufflevector(v_t159, v_t178, 0, 4, 2, 6);
+    const derive_vd tr_v_t159_1 = __builtin_shufflevector(v_t159, v_t178, 1, 5, 3, 7);
+    const derive_vd tr_v_t159_2 = __builtin_shufflevector(v_t196, v_t213, 0, 4, 2, 6);
+    const derive_vd tr_v_t159_3 = __builtin_shufflevector(v_t196, v_t213, 1, 5, 3, 7);
+    const derive_vd tr_v_t159_c0 = __builtin_shufflevector(tr_v_t159_0, tr_v_t159_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t159_c1 = __builtin_shufflevector(tr_v_t159_1, tr_v_t159_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t159_c2 = __builtin_shufflevector(tr_v_t159_0, tr_v_t159_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t159_c3 = __builtin_shufflevector(tr_v_t159_1, tr_v_t159_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[116] = v_t159;
+    *(derive_vd_unaligned *)&P_new[140] = v_t178;
+    *(derive_vd_unaligned *)&P_new[164] = v_t196;
+    *(derive_vd_unaligned *)&P_new[188] = v_t213;
+    *(derive_vd_unaligned *)&P_new[484] = tr_v_t159_c0;
+    *(derive_vd_unaligned *)&P_new[508] = tr_v_t159_c1;
+    *(derive_vd_unaligned *)&P_new[532] = tr_v_t159_c2;
+    *(derive_vd_unaligned *)&P_new[556] = tr_v_t159_c3;
+    #else
+    const double t213 = DERIVE_FMA(t12, P[236], P[188]);
+    const double t214 = DERIVE_FMA(t12, P[237], P[189]);
+    const double t215 = DERIVE_FMA(t12, P[238], P[190]);
+    const double t216 = DERIVE_FMA(t12, P[239], P[191]);
+    P_new[188] = t213;
+    P_new[487] = t213;
+    P_new[189] = t214;
+    P_new[511] = t214;
+    P_new[190] = t215;
+    P_new[535] = t215;
+    P_new[191] = t216;
+    P_new[559] = t216;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t217 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const double t218 = v_t217[1];
+    const double t219 = v_t217[2];
+    const double t220 = v_t217[3];
+    *(derive_vd_unaligned *)&P_new[200] = v_t217;
+    #else
+    const double t217 = DERIVE_FMA(t13, P[224], P[200]);
+    const double t218 = DERIVE_FMA(t13, P[225], P[201]);
+    const double t219 = DERIVE_FMA(t13, P[226], P[202]);
+    const double t220 = DERIVE_FMA(t13, P[227], P[203]);
+    P_new[200] = t217;
+    P_new[201] = t218;
+    P_new[224] = t218;
+    P_new[202] = t219;
+    P_new[248] = t219;
+    P_new[203] = t220;
+    P_new[272] = t220;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t221 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    #else
+    const double t221 = DERIVE_FMA(t13, P[228], P[204]);
+    const double t222 = DERIVE_FMA(t13, P[229], P[205]);
+    const double t223 = DERIVE_FMA(t13, P[230], P[206]);
+    const double t224 = DERIVE_FMA(t13, P[231], P[207]);
+    P_new[204] = t221;
+    P_new[296] = t221;
+    P_new[205] = t222;
+    P_new[320] = t222;
+    P_new[206] = t223;
+    P_new[344] = t223;
+    P_new[207] = t224;
+    P_new[368] = t224;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t225 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
+    #else
+    const double t225 = DERIVE_FMA(t13, P[232], P[208]);
+    const double t226 = DERIVE_FMA(t13, P[233], P[209]);
+    const double t227 = DERIVE_FMA(t13, P[234], P[210]);
+    const double t228 = DERIVE_FMA(t13, P[235], P[211]);
+    P_new[208] = t225;
+    P_new[392] = t225;
+    P_new[209] = t226;
+    P_new[416] = t226;
+    P_new[210] = t227;
+    P_new[440] = t227;
+    P_new[211] = t228;
+    P_new[464] = t228;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t229 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
+    #else
+    const double t229 = DERIVE_FMA(t13, P[236], P[212]);
+    const double t230 = DERIVE_FMA(t13, P[237], P[213]);
+    const double t231 = DERIVE_FMA(t13, P[238], P[214]);
+    const double t232 = DERIVE_FMA(t13, P[239], P[215]);
+    P_new[212] = t229;
+    P_new[488] = t229;
+    P_new[213] = t230;
+    P_new[512] = t230;
+    P_new[214] = t231;
+    P_new[536] = t231;
+    P_new[215] = t232;
+    P_new[560] = t232;
+    #endif
+    const double t233 = (-0.25)*t14;
+    const double t234 = (-0.25)*t15;
+    const double t235 = (-0.25)*t16;
+    #if DERIVE_VECTOR
+    const derive_vd v_t236 = (((derive_vd){(-0.25), (-0.25), (-0.25), (-0.25)}) * v_t17);
+    #else
+    const double t236 = (-0.25)*t17;
+    const double t237 = (-0.25)*t18;
+    const double t238 = (-0.25)*t19;
+    const double t239 = (-0.25)*t20;
+    P_new[228] = t236;
+    P_new[297] = t236;
+    P_new[229] = t237;
+    P_new[321] = t237;
+    P_new[230] = t238;
+    P_new[345] = t238;
+    P_new[231] = t239;
+    P_new[369] = t239;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t240 = (((derive_vd){(-0.25), (-0.25), (-0.25), (-0.25)}) * v_t21);
+    #else
+    const double t240 = (-0.25)*t21;
+    const double t241 = (-0.25)*t22;
+    const double t242 = (-0.25)*t23;
+    const double t243 = (-0.25)*t24;
+    P_new[232] = t240;
+    P_new[393] = t240;
+    P_new[233] = t241;
+    P_new[417] = t241;
+    P_new[234] = t242;
+    P_new[441] = t242;
+    P_new[235] = t243;
+    P_new[465] = t243;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t244 = (((derive_vd){(-0.25), (-0.25), (-0.25), (-0.25)}) * v_t25);
+    #else
+    const double t244 = (-0.25)*t25;
+    const double t245 = (-0.25)*t26;
+    const double t246 = (-0.25)*t27;
+    const double t247 = (-0.25)*t28;
+    P_new[236] = t244;
+    P_new[489] = t244;
+    P_new[237] = t245;
+    P_new[513] = t245;
+    P_new[238] = t246;
+    P_new[537] = t246;
+    P_new[239] = t247;
+    P_new[561] = t247;
+    #endif
+    const double t248 = DERIVE_FMA(P[226], t15, P[250]);
+    const double t249 = DERIVE_FMA(P[227], t15, P[251]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t250 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
+    #else
+    const double t250 = DERIVE_FMA(t15, P[228], P[252]);
+    const double t251 = DERIVE_FMA(t15, P[229], P[253]);
+    const double t252 = DERIVE_FMA(t15, P[230], P[254]);
+    const double t253 = DERIVE_FMA(t15, P[231], P[255]);
+    P_new[252] = t250;
+    P_new[298] = t250;
+    P_new[253] = t251;
+    P_new[322] = t251;
+    P_new[254] = t252;
+    P_new[346] = t252;
+    P_new[255] = t253;
+    P_new[370] = t253;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t254 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[256], P[257], P[258], P[259]}));
+    #else
+    const double t254 = DERIVE_FMA(t15, P[232], P[256]);
+    const double t255 = DERIVE_FMA(t15, P[233], P[257]);
+    const double t256 = DERIVE_FMA(t15, P[234], P[258]);
+    const double t257 = DERIVE_FMA(t15, P[235], P[259]);
+    P_new[256] = t254;
+    P_new[394] = t254;
+    P_new[257] = t255;
+    P_new[418] = t255;
+    P_new[258] = t256;
+    P_new[442] = t256;
+    P_new[259] = t257;
+    P_new[466] = t257;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t258 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[260], P[261], P[262], P[263]}));
+    #else
+    const double t258 = DERIVE_FMA(t15, P[236], P[260]);
+    const double t259 = DERIVE_FMA(t15, P[237], P[261]);
+    const double t260 = DERIVE_FMA(t15, P[238], P[262]);
+    const double t261 = DERIVE_FMA(t15, P[239], P[263]);
+    P_new[260] = t258;
+    P_new[490] = t258;
+    P_new[261] = t259;
+    P_new[514] = t259;
+    P_new[262] = t260;
+    P_new[538] = t260;
+    P_new[263] = t261;
+    P_new[562] = t261;
+    #endif
+    const double t262 = DERIVE_FMA(P[227], t16, P[275]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t263 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[276], P[277], P[278], P[279]}));
+    const derive_vd tr_v_t221_0 = __builtin_shufflevector(v_t221, v_t236, 0, 4, 2, 6);
+    const derive_vd tr_v_t221_1 = __builtin_shufflevector(v_t221, v_t236, 1, 5, 3, 7);
+    const derive_vd tr_v_t221_2 = __builtin_shufflevector(v_t250, v_t263, 0, 4, 2, 6);
+    const derive_vd tr_v_t221_3 = __builtin_shufflevector(v_t250, v_t263, 1, 5, 3, 7);
+    const derive_vd tr_v_t221_c0 = __builtin_shufflevector(tr_v_t221_0, tr_v_t221_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t221_c1 = __builtin_shufflevector(tr_v_t221_1, tr_v_t221_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t221_c2 = __builtin_shufflevector(tr_v_t221_0, tr_v_t221_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t221_c3 = __builtin_shufflevector(tr_v_t221_1, tr_v_t221_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[204] = v_t221;
+    *(derive_vd_unaligned *)&P_new[228] = v_t236;
+    *(derive_vd_unaligned *)&P_new[252] = v_t250;
+    *(derive_vd_unaligned *)&P_new[276] = v_t263;
+    *(derive_vd_unaligned *)&P_new[296] = tr_v_t221_c0;
+    *(derive_vd_unaligned *)&P_new[320] = tr_v_t221_c1;
+    *(derive_vd_unaligned *)&P_new[344] = tr_v_t221_c2;
+    *(derive_vd_unaligned *)&P_new[368] = tr_v_t221_c3;
+    #else
+    const double t263 = DERIVE_FMA(t16, P[228], P[276]);
+    const double t264 = DERIVE_FMA(t16, P[229], P[277]);
+    const double t265 = DERIVE_FMA(t16, P[230], P[278]);
+    const double t266 = DERIVE_FMA(t16, P[231], P[279]);
+    P_new[276] = t263;
+    P_new[299] = t263;
+    P_new[277] = t264;
+    P_new[323] = t264;
+    P_new[278] = t265;
+    P_new[347] = t265;
+    P_new[279] = t266;
+    P_new[371] = t266;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t267 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[280], P[281], P[282], P[283]}));
+    const derive_vd tr_v_t225_0 = __builtin_shufflevector(v_t225, v_t240, 0, 4, 2, 6);
+    const derive_vd tr_v_t225_1 = __builtin_shufflevector(v_t225, v_t240, 1, 5, 3, 7);
+    const derive_vd tr_v_t225_2 = __builtin_shufflevector(v_t254, v_t267, 0, 4, 2, 6);
+    const derive_vd tr_v_t225_3 = __builtin_shufflevector(v_t254, v_t267, 1, 5, 3, 7);
+    const derive_vd tr_v_t225_c0 = __builtin_shufflevector(tr_v_t225_0, tr_v_t225_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t225_c1 = __builtin_shufflevector(tr_v_t225_1, tr_v_t225_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t225_c2 = __builtin_shufflevector(tr_v_t225_0, tr_v_t225_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t225_c3 = __builtin_shufflevector(tr_v_t225_1, tr_v_t225_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[208] = v_t225;
+    *(derive_vd_unaligned *)&P_new[232] = v_t240;
+    *(derive_vd_unaligned *)&P_new[256] = v_t254;
+    *(derive_vd_unaligned *)&P_new[280] = v_t267;
+    *(derive_vd_unaligned *)&P_new[392] = tr_v_t225_c0;
+    *(derive_vd_unaligned *)&P_new[416] = tr_v_t225_c1;
+    *(derive_vd_unaligned *)&P_new[440] = tr_v_t225_c2;
+    *(derive_vd_unaligned *)&P_new[464] = tr_v_t225_c3;
+    #else
+    const double t267 = DERIVE_FMA(t16, P[232], P[280]);
+    const double t268 = DERIVE_FMA(t16, P[233], P[281]);
+    const double t269 = DERIVE_FMA(t16, P[234], P[282]);
+    const double t270 = DERIVE_FMA(t16, P[235], P[283]);
+    P_new[280] = t267;
+    P_new[395] = t267;
+    P_new[281] = t268;
+    P_new[419] = t268;
+    P_new[282] = t269;
+    P_new[443] = t269;
+    P_new[283] = t270;
+    P_new[467] = t270;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t271 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[284], P[285], P[286], P[287]}));
+    const derive_vd tr_v_t229_0 = __builtin_shufflevector(v_t229, v_t244, 0, 4, 2, 6);
+    const derive_vd tr_v_t229_1 = __builtin_shufflevector(v_t229, v_t244, 1, 5, 3, 7);
+    const derive_vd tr_v_t229_2 = __builtin_shufflevector(v_t258, v_t271, 0, 4, 2, 6);
+    const derive_vd tr_v_t229_3 = __builtin_shufflevector(v_t258, v_t271, 1, 5, 3, 7);
+    const derive_vd tr_v_t229_c0 = __builtin_shufflevector(tr_v_t229_0, tr_v_t229_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t229_c1 = __builtin_shufflevector(tr_v_t229_1, tr_v_t229_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t229_c2 = __builtin_shufflevector(tr_v_t229_0, tr_v_t229_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t229_c3 = __builtin_shufflevector(tr_v_t229_1, tr_v_t229_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[212] = v_t229;
+    *(derive_vd_unaligned *)&P_new[236] = v_t244;
+    *(derive_vd_unaligned *)&P_new[260] = v_t258;
+    *(derive_vd_unaligned *)&P_new[284] = v_t271;
+    *(derive_vd_unaligned *)&P_new[488] = tr_v_t229_c0;
+    *(derive_vd_unaligned *)&P_new[512] = tr_v_t229_c1;
+    *(derive_vd_unaligned *)&P_new[536] = tr_v_t229_c2;
+    *(derive_vd_unaligned *)&P_new[560] = tr_v_t229_c3;
+    #else
+    const double t271 = DERIVE_FMA(t16, P[236], P[284]);
+    const double t272 = DERIVE_FMA(t16, P[237], P[285]);
+    const double t273 = DERIVE_FMA(t16, P[238], P[286]);
+    const double t274 = DERIVE_FMA(t16, P[239], P[287]);
+    P_new[284] = t271;
+    P_new[491] = t271;
+    P_new[285] = t272;
+    P_new[515] = t272;
+    P_new[286] = t273;
+    P_new[539] = t273;
+    P_new[287] = t274;
+    P_new[563] = t274;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t275 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[300], P[301], P[302], P[303]}));
+    const double t276 = v_t275[1];
+    const double t277 = v_t275[2];
+    const double t278 = v_t275[3];
+    *(derive_vd_unaligned *)&P_new[300] = v_t275;
+    #else
+    const double t275 = DERIVE_FMA(t17, P[228], P[300]);
+    const double t276 = DERIVE_FMA(t17, P[229], P[301]);
+    const double t277 = DERIVE_FMA(t17, P[230], P[302]);
+    const double t278 = DERIVE_FMA(t17, P[231], P[303]);
+    P_new[300] = t275;
+    P_new[301] = t276;
+    P_new[324] = t276;
+    P_new[302] = t277;
+    P_new[348] = t277;
+    P_new[303] = t278;
+    P_new[372] = t278;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t279 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[304], P[305], P[306], P[307]}));
+    #else
+    const double t279 = DERIVE_FMA(t17, P[232], P[304]);
+    const double t280 = DERIVE_FMA(t17, P[233], P[305]);
+    const double t281 = DERIVE_FMA(t17, P[234], P[306]);
+    const double t282 = DERIVE_FMA(t17, P[235], P[307]);
+    P_new[304] = t279;
+    P_new[396] = t279;
+    P_new[305] = t280;
+    P_new[420] = t280;
+    P_new[306] = t281;
+    P_new[444] = t281;
+    P_new[307] = t282;
+    P_new[468] = t282;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[308], P[309], P[310], P[311]}));
+    #else
+    const double t283 = DERIVE_FMA(t17, P[236], P[308]);
+    const double t284 = DERIVE_FMA(t17, P[237], P[309]);
+    const double t285 = DERIVE_FMA(t17, P[238], P[310]);
+    const double t286 = DERIVE_FMA(t17, P[239], P[311]);
+    P_new[308] = t283;
+    P_new[492] = t283;
+    P_new[309] = t284;
+    P_new[516] = t284;
+    P_new[310] = t285;
+    P_new[540] = t285;
+    P_new[311] = t286;
+    P_new[564] = t286;
+    #endif
+    const double t287 = DERIVE_FMA(P[229], t18, P[325]);
+    const double t288 = DERIVE_FMA(P[230], t18, P[326]);
+    const double t289 = DERIVE_FMA(P[231], t18, P[327]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t290 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[328], P[329], P[330], P[331]}));
+    #else
+    const double t290 = DERIVE_FMA(t18, P[232], P[328]);
+    const double t291 = DERIVE_FMA(t18, P[233], P[329]);
+    const double t292 = DERIVE_FMA(t18, P[234], P[330]);
+    const double t293 = DERIVE_FMA(t18, P[235], P[331]);
+    P_new[328] = t290;
+    P_new[397] = t290;
+    P_new[329] = t291;
+    P_new[421] = t291;
+    P_new[330] = t292;
+    P_new[445] = t292;
+    P_new[331] = t293;
+    P_new[469] = t293;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t294 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[332], P[333], P[334], P[335]}));
+    #else
+    const double t294 = DERIVE_FMA(t18, P[236], P[332]);
+    const double t295 = DERIVE_FMA(t18, P[237], P[333]);
+    const double t296 = DERIVE_FMA(t18, P[238], P[334]);
+    const double t297 = DERIVE_FMA(t18, P[239], P[335]);
+    P_new[332] = t294;
+    P_new[493] = t294;
+    P_new[333] = t295;
+    P_new[517] = t295;
+    P_new[334] = t296;
+    P_new[541] = t296;
+    P_new[335] = t297;
+    P_new[565] = t297;
+    #endif
+    const double t298 = DERIVE_FMA(P[230], t19, P[350]);
+    const double t299 = DERIVE_FMA(P[231], t19, P[351]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t300 = DERIVE_VFMA(((derive_vd){t19, t19, t19, t19}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[352], P[353], P[354], P[355]}));
+    #else
+    const double t300 = DERIVE_FMA(t19, P[232], P[352]);
+    const double t301 = DERIVE_FMA(t19, P[233], P[353]);
+    const double t302 = DERIVE_FMA(t19, P[234], P[354]);
+    const double t303 = DERIVE_FMA(t19, P[235], P[355]);
+    P_new[352] = t300;
+    P_new[398] = t300;
+    P_new[353] = t301;
+    P_new[422] = t301;
+    P_new[354] = t302;
+    P_new[446] = t302;
+    P_new[355] = t303;
+    P_new[470] = t303;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t304 = DERIVE_VFMA(((derive_vd){t19, t19, t19, t19}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[356], P[357], P[358], P[359]}));
+    #else
+    const double t304 = DERIVE_FMA(t19, P[236], P[356]);
+    const double t305 = DERIVE_FMA(t19, P[237], P[357]);
+    const double t306 = DERIVE_FMA(t19, P[238], P[358]);
+    const double t307 = DERIVE_FMA(t19, P[239], P[359]);
+    P_new[356] = t304;
+    P_new[494] = t304;
+    P_new[357] = t305;
+    P_new[518] = t305;
+    P_new[358] = t306;
+    P_new[542] = t306;
+    P_new[359] = t307;
+    P_new[566] = t307;
+    #endif
+    const double t308 = DERIVE_FMA(P[231], t20, P[375]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t309 = DERIVE_VFMA(((derive_vd){t20, t20, t20, t20}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[376], P[377], P[378], P[379]}));
+    const derive_vd tr_v_t279_0 = __builtin_shufflevector(v_t279, v_t290, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_1 = __builtin_shufflevector(v_t279, v_t290, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_2 = __builtin_shufflevector(v_t300, v_t309, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_3 = __builtin_shufflevector(v_t300, v_t309, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_c0 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t279_c1 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t279_c2 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t279_c3 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[304] = v_t279;
+    *(derive_vd_unaligned *)&P_new[328] = v_t290;
+    *(derive_vd_unaligned *)&P_new[352] = v_t300;
+    *(derive_vd_unaligned *)&P_new[376] = v_t309;
+    *(derive_vd_unaligned *)&P_new[396] = tr_v_t279_c0;
+    *(derive_vd_unaligned *)&P_new[420] = tr_v_t279_c1;
+    *(derive_vd_unaligned *)&P_new[444] = tr_v_t279_c2;
+    *(derive_vd_unaligned *)&P_new[468] = tr_v_t279_c3;
+    #else
+    const double t309 = DERIVE_FMA(t20, P[232], P[376]);
+    const double t310 = DERIVE_FMA(t20, P[233], P[377]);
+    const double t311 = DERIVE_FMA(t20, P[234], P[378]);
+    const double t312 = DERIVE_FMA(t20, P[235], P[379]);
+    P_new[376] = t309;
+    P_new[399] = t309;
+    P_new[377] = t310;
+    P_new[423] = t310;
+    P_new[378] = t311;
+    P_new[447] = t311;
+    P_new[379] = t312;
+    P_new[471] = t312;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t313 = DERIVE_VFMA(((derive_vd){t20, t20, t20, t20}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[380], P[381], P[382], P[383]}));
+    const derive_vd tr_v_t283_0 = __builtin_shufflevector(v_t283, v_t294, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_1 = __builtin_shufflevector(v_t283, v_t294, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_2 = __builtin_shufflevector(v_t304, v_t313, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_3 = __builtin_shufflevector(v_t304, v_t313, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_c0 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t283_c1 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t283_c2 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t283_c3 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[308] = v_t283;
+    *(derive_vd_unaligned *)&P_new[332] = v_t294;
+    *(derive_vd_unaligned *)&P_new[356] = v_t304;
+    *(derive_vd_unaligned *)&P_new[380] = v_t313;
+    *(derive_vd_unaligned *)&P_new[492] = tr_v_t283_c0;
+    *(derive_vd_unaligned *)&P_new[516] = tr_v_t283_c1;
+    *(derive_vd_unaligned *)&P_new[540] = tr_v_t283_c2;
+    *(derive_vd_unaligned *)&P_new[564] = tr_v_t283_c3;
+    #else
+    const double t313 = DERIVE_FMA(t20, P[236], P[380]);
+    const double t314 = DERIVE_FMA(t20, P[237], P[381]);
+    const double t315 = DERIVE_FMA(t20, P[238], P[382]);
+    const double t316 = DERIVE_FMA(t20, P[239], P[383]);
+    P_new[380] = t313;
+    P_new[495] = t313;
+    P_new[381] = t314;
+    P_new[519] = t314;
+    P_new[382] = t315;
+    P_new[543] = t315;
+    P_new[383] = t316;
+    P_new[567] = t316;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t317 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[400], P[401], P[402], P[403]}));
+    const double t318 = v_t317[1];
+    const double t319 = v_t317[2];
+    const double t320 = v_t317[3];
+    *(derive_vd_unaligned *)&P_new[400] = v_t317;
+    #else
+    const double t317 = DERIVE_FMA(t21, P[232], P[400]);
+    const double t318 = DERIVE_FMA(t21, P[233], P[401]);
+    const double t319 = DERIVE_FMA(t21, P[234], P[402]);
+    const double t320 = DERIVE_FMA(t21, P[235], P[403]);
+    P_new[400] = t317;
+    P_new[401] = t318;
+    P_new[424] = t318;
+    P_new[402] = t319;
+    P_new[448] = t319;
+    P_new[403] = t320;
+    P_new[472] = t320;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[404], P[405], P[406], P[407]}));
+    #else
+    const double t321 = DERIVE_FMA(t21, P[236], P[404]);
+    const double t322 = DERIVE_FMA(t21, P[237], P[405]);
+    const double t323 = DERIVE_FMA(t21, P[238], P[406]);
+    const double t324 = DERIVE_FMA(t21, P[239], P[407]);
+    P_new[404] = t321;
+    P_new[496] = t321;
+    P_new[405] = t322;
+    P_new[520] = t322;
+    P_new[406] = t323;
+    P_new[544] = t323;
+    P_new[407] = t324;
+    P_new[568] = t324;
+    #endif
+    const double t325 = DERIVE_FMA(P[233], t22, P[425]);
+    const double t326 = DERIVE_FMA(P[234], t22, P[426]);
+    const double t327 = DERIVE_FMA(P[235], t22, P[427]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[428], P[429], P[430], P[431]}));
+    #else
+    const double t328 = DERIVE_FMA(t22, P[236], P[428]);
+    const double t329 = DERIVE_FMA(t22, P[237], P[429]);
+    const double t330 = DERIVE_FMA(t22, P[238], P[430]);
+    const double t331 = DERIVE_FMA(t22, P[239], P[431]);
+    P_new[428] = t328;
+    P_new[497] = t328;
+    P_new[429] = t329;
+    P_new[521] = t329;
+    P_new[430] = t330;
+    P_new[545] = t330;
+    P_new[431] = t331;
+    P_new[569] = t331;
+    #endif
+    const double t332 = DERIVE_FMA(P[234], t23, P[450]);
+    const double t333 = DERIVE_FMA(P[235], t23, P[451]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t334 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[452], P[453], P[454], P[455]}));
+    #else
+    const double t334 = DERIVE_FMA(t23, P[236], P[452]);
+    const double t335 = DERIVE_FMA(t23, P[237], P[453]);
+    const double t336 = DERIVE_FMA(t23, P[238], P[454]);
+    const double t337 = DERIVE_FMA(t23, P[239], P[455]);
+    P_new[452] = t334;
+    P_new[498] = t334;
+    P_new[453] = t335;
+    P_new[522] = t335;
+    P_new[454] = t336;
+    P_new[546] = t336;
+    P_new[455] = t337;
+    P_new[570] = t337;
+    #endif
+    const double t338 = DERIVE_FMA(P[235], t24, P[475]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[476], P[477], P[478], P[479]}));
+    const derive_vd tr_v_t321_0 = __builtin_shufflevector(v_t321, v_t328, 0, 4, 2, 6);
+    const derive_vd tr_v_t321_1 = __builtin_shufflevector(v_t321, v_t328, 1, 5, 3, 7);
+    const derive_vd tr_v_t321_2 = __builtin_shufflevector(v_t334, v_t339, 0, 4, 2, 6);
+    const derive_vd tr_v_t321_3 = __builtin_shufflevector(v_t334, v_t339, 1, 5, 3, 7);
+    const derive_vd tr_v_t321_c0 = __builtin_shufflevector(tr_v_t321_0, tr_v_t321_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t321_c1 = __builtin_shufflevector(tr_v_t321_1, tr_v_t321_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t321_c2 = __builtin_shufflevector(tr_v_t321_0, tr_v_t321_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t321_c3 = __builtin_shufflevector(tr_v_t321_1, tr_v_t321_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[404] = v_t321;
+    *(derive_vd_unaligned *)&P_new[428] = v_t328;
+    *(derive_vd_unaligned *)&P_new[452] = v_t334;
+    *(derive_vd_unaligned *)&P_new[476] = v_t339;
+    *(derive_vd_unaligned *)&P_new[496] = tr_v_t321_c0;
+    *(derive_vd_unaligned *)&P_new[520] = tr_v_t321_c1;
+    *(derive_vd_unaligned *)&P_new[544] = tr_v_t321_c2;
+    *(derive_vd_unaligned *)&P_new[568] = tr_v_t321_c3;
+    #else
+    const double t339 = DERIVE_FMA(t24, P[236], P[476]);
+    const double t340 = DERIVE_FMA(t24, P[237], P[477]);
+    const double t341 = DERIVE_FMA(t24, P[238], P[478]);
+    const double t342 = DERIVE_FMA(t24, P[239], P[479]);
+    P_new[476] = t339;
+    P_new[499] = t339;
+    P_new[477] = t340;
+    P_new[523] = t340;
+    P_new[478] = t341;
+    P_new[547] = t341;
+    P_new[479] = t342;
+    P_new[571] = t342;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[500], P[501], P[502], P[503]}));
+    const double t344 = v_t343[1];
+    const double t345 = v_t343[2];
+    const double t346 = v_t343[3];
+    *(derive_vd_unaligned *)&P_new[500] = v_t343;
+    #else
+    const double t343 = DERIVE_FMA(t25, P[236], P[500]);
+    const double t344 = DERIVE_FMA(t25, P[237], P[501]);
+    const double t345 = DERIVE_FMA(t25, P[238], P[502]);
+    const double t346 = DERIVE_FMA(t25, P[239], P[503]);
+    P_new[500] = t343;
+    P_new[501] = t344;
+    P_new[524] = t344;
+    P_new[502] = t345;
+    P_new[548] = t345;
+    P_new[503] = t346;
+    P_new[572] = t346;
+    #endif
+    const double t347 = DERIVE_FMA(P[237], t26, P[525]);
+    const double t348 = DERIVE_FMA(P[238], t26, P[526]);
+    const double t349 = DERIVE_FMA(P[239], t26, P[527]);
+    const double t350 = DERIVE_FMA(P[238], t27, P[550]);
+    const double t351 = DERIVE_FMA(P[239], t27, P[551]);
+    const double t352 = DERIVE_FMA(P[239], t28, P[575]);
+    const double t353 = DERIVE_FMA(t32, t32, DERIVE_FMA(t31, t31, DERIVE_FMA(t30, t30, t29*t29)));
+    const double t354 = 1.0/sqrt(t353);
+    const double t355 = t29*t354;
+    const double t356 = t30*t354;
+    const double t357 = t31*t354;
+    const double t358 = t32*t354;
+    #if DERIVE_VECTOR
+    x_new[0] = t355;
+    x_new[1] = t356;
+    x_new[2] = t357;
+    x_new[3] = t358;
+    P_new[24] = t54;
+    P_new[25] = t77;
+    P_new[26] = t78;
+    P_new[27] = t79;
+    P_new[48] = t55;
+    P_new[49] = t78;
+    P_new[50] = t100;
+    P_new[51] = t101;
+    P_new[72] = t56;
+    P_new[73] = t79;
+    P_new[74] = t101;
+    P_new[75] = t122;
+    P_new[124] = t144;
+    P_new[125] = t163;
+    P_new[126] = t164;
+    P_new[127] = t165;
+    P_new[148] = t145;
+    P_new[149] = t164;
+    P_new[150] = t182;
+    P_new[151] = t183;
+    P_new[172] = t146;
+    P_new[173] = t165;
+    P_new[174] = t183;
+    P_new[175] = t200;
+    P_new[224] = t218;
+    P_new[225] = t233;
+    P_new[226] = t234;
+    P_new[227] = t235;
+    P_new[248] = t219;
+    P_new[249] = t234;
+    P_new[250] = t248;
+    P_new[251] = t249;
+    P_new[272] = t220;
+    P_new[273] = t235;
+    P_new[274] = t249;
+    P_new[275] = t262;
+    P_new[324] = t276;
+    P_new[325] = t287;
+    P_new[326] = t288;
+    P_new[327] = t289;
+    P_new[348] = t277;
+    P_new[349] = t288;
+    P_new[350] = t298;
+    P_new[351] = t299;
+    P_new[372] = t278;
+    P_new[373] = t289;
+    P_new[374] = t299;
+    P_new[375] = t308;
+    P_new[424] = t318;
+    P_new[425] = t325;
+    P_new[426] = t326;
+    P_new[427] = t327;
+    P_new[448] = t319;
+    P_new[449] = t326;
+    P_new[450] = t332;
+    P_new[451] = t333;
+    P_new[472] = t320;
+    P_new[473] = t327;
+    P_new[474] = t333;
+    P_new[475] = t338;
+    P_new[524] = t344;
+    P_new[525] = t347;
+    P_new[526] = t348;
+    P_new[527] = t349;
+    P_new[548] = t345;
+    P_new[549] = t348;
+    P_new[550] = t350;
+    P_new[551] = t351;
+    P_new[572] = t346;
+    P_new[573] = t349;
+    P_new[574] = t351;
+    P_new[575] = t352;
+    #else
+    x_new[0] = t355;
+    x_new[1] = t356;
+    x_new[2] = t357;
+    x_new[3] = t358;
+    P_new[25] = t77;
+    P_new[26] = t78;
+    P_new[27] = t79;
+    P_new[49] = t78;
+    P_new[50] = t100;
+    P_new[51] = t101;
+    P_new[73] = t79;
+    P_new[74] = t101;
+    P_new[75] = t122;
+    P_new[125] = t163;
+    P_new[126] = t164;
+    P_new[127] = t165;
+    P_new[149] = t164;
+    P_new[150] = t182;
+    P_new[151] = t183;
+    P_new[173] = t165;
+    P_new[174] = t183;
+    P_new[175] = t200;
+    P_new[225] = t233;
+    P_new[226] = t234;
+    P_new[227] = t235;
+    P_new[249] = t234;
+    P_new[250] = t248;
+    P_new[251] = t249;
+    P_new[273] = t235;
+    P_new[274] = t249;
+    P_new[275] = t262;
+    P_new[325] = t287;
+    P_new[326] = t288;
+    P_new[327] = t289;
+    P_new[349] = t288;
+    P_new[350] = t298;
+    P_new[351] = t299;
+    P_new[373] = t289;
+    P_new[374] = t299;
+    P_new[375] = t308;
+    P_new[425] = t325;
+    P_new[426] = t326;
+    P_new[427] = t327;
+    P_new[449] = t326;
+    P_new[450] = t332;
+    P_new[451] = t333;
+    P_new[473] = t327;
+    P_new[474] = t333;
+    P_new[475] = t338;
+    P_new[525] = t347;
+    P_new[526] = t348;
+    P_new[527] = t349;
+    P_new[549] = t348;
+    P_new[550] = t350;
+    P_new[551] = t351;
+    P_new[573] = t349;
+    P_new[574] = t351;
+    P_new[575] = t352;
     #endif
     return 0;
 }
@@ -7552,6 +7378,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t270 = DERIVE_FNMA(t144, t174, DERIVE_FNMA(t141, t150, DERIVE_FNMA(t136, t57, x[5])));
     const double t271 = DERIVE_FNMA(t144, t175, DERIVE_FNMA(t141, t151, DERIVE_FNMA(t136, t58, x[6])));
     const double t272 = DERIVE_FNMA(t144, t176, DERIVE_FNMA(t141, t152, DERIVE_FNMA(t136, t59, x[7])));
+    x_new[4] = t269;
+    x_new[5] = t270;
+    x_new[6] = t271;
+    x_new[7] = t272;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t273_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t60, ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -7563,6 +7393,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t274 = DERIVE_FNMA(t144, t178, DERIVE_FNMA(t141, t154, DERIVE_FNMA(t136, t61, x[9])));
     const double t275 = DERIVE_FNMA(t144, t179, DERIVE_FNMA(t141, t155, DERIVE_FNMA(t136, t62, x[10])));
     const double t276 = DERIVE_FNMA(t144, t180, DERIVE_FNMA(t141, t156, DERIVE_FNMA(t136, t63, x[11])));
+    x_new[8] = t273;
+    x_new[9] = t274;
+    x_new[10] = t275;
+    x_new[11] = t276;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t277_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t64, ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -7574,6 +7408,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t278 = DERIVE_FNMA(t144, t182, DERIVE_FNMA(t141, t158, DERIVE_FNMA(t136, t65, x[13])));
     const double t279 = DERIVE_FNMA(t144, t183, DERIVE_FNMA(t141, t159, DERIVE_FNMA(t136, t66, x[14])));
     const double t280 = DERIVE_FNMA(t144, t184, DERIVE_FNMA(t141, t160, DERIVE_FNMA(t136, t67, x[15])));
+    x_new[12] = t277;
+    x_new[13] = t278;
+    x_new[14] = t279;
+    x_new[15] = t280;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t281_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t68, ((derive_vd){x[16], x[17], x[18], x[19]}));
@@ -7585,6 +7423,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t282 = DERIVE_FNMA(t144, t186, DERIVE_FNMA(t141, t162, DERIVE_FNMA(t136, t69, x[17])));
     const double t283 = DERIVE_FNMA(t144, t187, DERIVE_FNMA(t141, t163, DERIVE_FNMA(t136, t70, x[18])));
     const double t284 = DERIVE_FNMA(t144, t188, DERIVE_FNMA(t141, t164, DERIVE_FNMA(t136, t71, x[19])));
+    x_new[16] = t281;
+    x_new[17] = t282;
+    x_new[18] = t283;
+    x_new[19] = t284;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t285_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t72, ((derive_vd){x[20], x[21], x[22], x[23]}));
@@ -7596,6 +7438,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t286 = DERIVE_FNMA(t144, t190, DERIVE_FNMA(t141, t166, DERIVE_FNMA(t136, t73, x[21])));
     const double t287 = DERIVE_FNMA(t144, t191, DERIVE_FNMA(t141, t167, DERIVE_FNMA(t136, t74, x[22])));
     const double t288 = DERIVE_FNMA(t144, t192, DERIVE_FNMA(t141, t168, DERIVE_FNMA(t136, t75, x[23])));
+    x_new[20] = t285;
+    x_new[21] = t286;
+    x_new[22] = t287;
+    x_new[23] = t288;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t289_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t52, ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -7610,6 +7456,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t290 = DERIVE_FMA(t241, t170, DERIVE_FMA(t217, t146, DERIVE_FMA(t193, t53, P[1])));
     const double t291 = DERIVE_FMA(t241, t171, DERIVE_FMA(t217, t147, DERIVE_FMA(t193, t54, P[2])));
     const double t292 = DERIVE_FMA(t241, t172, DERIVE_FMA(t217, t148, DERIVE_FMA(t193, t55, P[3])));
+    P_new[0] = t289;
+    P_new[1] = t290;
+    P_new[24] = t290;
+    P_new[2] = t291;
+    P_new[48] = t291;
+    P_new[3] = t292;
+    P_new[72] = t292;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t293_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t56, ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -7620,6 +7473,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t294 = DERIVE_FMA(t241, t174, DERIVE_FMA(t217, t150, DERIVE_FMA(t193, t57, P[5])));
     const double t295 = DERIVE_FMA(t241, t175, DERIVE_FMA(t217, t151, DERIVE_FMA(t193, t58, P[6])));
     const double t296 = DERIVE_FMA(t241, t176, DERIVE_FMA(t217, t152, DERIVE_FMA(t193, t59, P[7])));
+    P_new[4] = t293;
+    P_new[96] = t293;
+    P_new[5] = t294;
+    P_new[120] = t294;
+    P_new[6] = t295;
+    P_new[144] = t295;
+    P_new[7] = t296;
+    P_new[168] = t296;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t297_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t60, ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -7630,6 +7491,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t298 = DERIVE_FMA(t241, t178, DERIVE_FMA(t217, t154, DERIVE_FMA(t193, t61, P[9])));
     const double t299 = DERIVE_FMA(t241, t179, DERIVE_FMA(t217, t155, DERIVE_FMA(t193, t62, P[10])));
     const double t300 = DERIVE_FMA(t241, t180, DERIVE_FMA(t217, t156, DERIVE_FMA(t193, t63, P[11])));
+    P_new[8] = t297;
+    P_new[192] = t297;
+    P_new[9] = t298;
+    P_new[216] = t298;
+    P_new[10] = t299;
+    P_new[240] = t299;
+    P_new[11] = t300;
+    P_new[264] = t300;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t301_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t64, ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -7640,6 +7509,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t302 = DERIVE_FMA(t241, t182, DERIVE_FMA(t217, t158, DERIVE_FMA(t193, t65, P[13])));
     const double t303 = DERIVE_FMA(t241, t183, DERIVE_FMA(t217, t159, DERIVE_FMA(t193, t66, P[14])));
     const double t304 = DERIVE_FMA(t241, t184, DERIVE_FMA(t217, t160, DERIVE_FMA(t193, t67, P[15])));
+    P_new[12] = t301;
+    P_new[288] = t301;
+    P_new[13] = t302;
+    P_new[312] = t302;
+    P_new[14] = t303;
+    P_new[336] = t303;
+    P_new[15] = t304;
+    P_new[360] = t304;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t305_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t68, ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -7650,6 +7527,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t306 = DERIVE_FMA(t241, t186, DERIVE_FMA(t217, t162, DERIVE_FMA(t193, t69, P[17])));
     const double t307 = DERIVE_FMA(t241, t187, DERIVE_FMA(t217, t163, DERIVE_FMA(t193, t70, P[18])));
     const double t308 = DERIVE_FMA(t241, t188, DERIVE_FMA(t217, t164, DERIVE_FMA(t193, t71, P[19])));
+    P_new[16] = t305;
+    P_new[384] = t305;
+    P_new[17] = t306;
+    P_new[408] = t306;
+    P_new[18] = t307;
+    P_new[432] = t307;
+    P_new[19] = t308;
+    P_new[456] = t308;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t309_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t72, ((derive_vd){P[20], P[21], P[22], P[23]}));
@@ -7660,6 +7545,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t310 = DERIVE_FMA(t241, t190, DERIVE_FMA(t217, t166, DERIVE_FMA(t193, t73, P[21])));
     const double t311 = DERIVE_FMA(t241, t191, DERIVE_FMA(t217, t167, DERIVE_FMA(t193, t74, P[22])));
     const double t312 = DERIVE_FMA(t241, t192, DERIVE_FMA(t217, t168, DERIVE_FMA(t193, t75, P[23])));
+    P_new[20] = t309;
+    P_new[480] = t309;
+    P_new[21] = t310;
+    P_new[504] = t310;
+    P_new[22] = t311;
+    P_new[528] = t311;
+    P_new[23] = t312;
+    P_new[552] = t312;
     #endif
     const double t313 = DERIVE_FMA(t194, t53, DERIVE_FMA(t170, t242, DERIVE_FMA(t146, t218, P[25])));
     const double t314 = DERIVE_FMA(t194, t54, DERIVE_FMA(t171, t242, DERIVE_FMA(t147, t218, P[26])));
@@ -7673,6 +7566,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t317 = DERIVE_FMA(t242, t174, DERIVE_FMA(t218, t150, DERIVE_FMA(t194, t57, P[29])));
     const double t318 = DERIVE_FMA(t242, t175, DERIVE_FMA(t218, t151, DERIVE_FMA(t194, t58, P[30])));
     const double t319 = DERIVE_FMA(t242, t176, DERIVE_FMA(t218, t152, DERIVE_FMA(t194, t59, P[31])));
+    P_new[28] = t316;
+    P_new[97] = t316;
+    P_new[29] = t317;
+    P_new[121] = t317;
+    P_new[30] = t318;
+    P_new[145] = t318;
+    P_new[31] = t319;
+    P_new[169] = t319;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t320_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t60, ((derive_vd){P[32], P[33], P[34], P[35]}));
@@ -7683,6 +7584,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t321 = DERIVE_FMA(t242, t178, DERIVE_FMA(t218, t154, DERIVE_FMA(t194, t61, P[33])));
     const double t322 = DERIVE_FMA(t242, t179, DERIVE_FMA(t218, t155, DERIVE_FMA(t194, t62, P[34])));
     const double t323 = DERIVE_FMA(t242, t180, DERIVE_FMA(t218, t156, DERIVE_FMA(t194, t63, P[35])));
+    P_new[32] = t320;
+    P_new[193] = t320;
+    P_new[33] = t321;
+    P_new[217] = t321;
+    P_new[34] = t322;
+    P_new[241] = t322;
+    P_new[35] = t323;
+    P_new[265] = t323;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t324_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t64, ((derive_vd){P[36], P[37], P[38], P[39]}));
@@ -7693,6 +7602,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t325 = DERIVE_FMA(t242, t182, DERIVE_FMA(t218, t158, DERIVE_FMA(t194, t65, P[37])));
     const double t326 = DERIVE_FMA(t242, t183, DERIVE_FMA(t218, t159, DERIVE_FMA(t194, t66, P[38])));
     const double t327 = DERIVE_FMA(t242, t184, DERIVE_FMA(t218, t160, DERIVE_FMA(t194, t67, P[39])));
+    P_new[36] = t324;
+    P_new[289] = t324;
+    P_new[37] = t325;
+    P_new[313] = t325;
+    P_new[38] = t326;
+    P_new[337] = t326;
+    P_new[39] = t327;
+    P_new[361] = t327;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t328_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t68, ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -7703,6 +7620,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t329 = DERIVE_FMA(t242, t186, DERIVE_FMA(t218, t162, DERIVE_FMA(t194, t69, P[41])));
     const double t330 = DERIVE_FMA(t242, t187, DERIVE_FMA(t218, t163, DERIVE_FMA(t194, t70, P[42])));
     const double t331 = DERIVE_FMA(t242, t188, DERIVE_FMA(t218, t164, DERIVE_FMA(t194, t71, P[43])));
+    P_new[40] = t328;
+    P_new[385] = t328;
+    P_new[41] = t329;
+    P_new[409] = t329;
+    P_new[42] = t330;
+    P_new[433] = t330;
+    P_new[43] = t331;
+    P_new[457] = t331;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t332_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t72, ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -7713,6 +7638,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t333 = DERIVE_FMA(t242, t190, DERIVE_FMA(t218, t166, DERIVE_FMA(t194, t73, P[45])));
     const double t334 = DERIVE_FMA(t242, t191, DERIVE_FMA(t218, t167, DERIVE_FMA(t194, t74, P[46])));
     const double t335 = DERIVE_FMA(t242, t192, DERIVE_FMA(t218, t168, DERIVE_FMA(t194, t75, P[47])));
+    P_new[44] = t332;
+    P_new[481] = t332;
+    P_new[45] = t333;
+    P_new[505] = t333;
+    P_new[46] = t334;
+    P_new[529] = t334;
+    P_new[47] = t335;
+    P_new[553] = t335;
     #endif
     const double t336 = DERIVE_FMA(t195, t54, DERIVE_FMA(t171, t243, DERIVE_FMA(t147, t219, P[50])));
     const double t337 = DERIVE_FMA(t195, t55, DERIVE_FMA(t172, t243, DERIVE_FMA(t148, t219, P[51])));
@@ -7725,6 +7658,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t339 = DERIVE_FMA(t243, t174, DERIVE_FMA(t219, t150, DERIVE_FMA(t195, t57, P[53])));
     const double t340 = DERIVE_FMA(t243, t175, DERIVE_FMA(t219, t151, DERIVE_FMA(t195, t58, P[54])));
     const double t341 = DERIVE_FMA(t243, t176, DERIVE_FMA(t219, t152, DERIVE_FMA(t195, t59, P[55])));
+    P_new[52] = t338;
+    P_new[98] = t338;
+    P_new[53] = t339;
+    P_new[122] = t339;
+    P_new[54] = t340;
+    P_new[146] = t340;
+    P_new[55] = t341;
+    P_new[170] = t341;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t342_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t60, ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -7735,6 +7676,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t343 = DERIVE_FMA(t243, t178, DERIVE_FMA(t219, t154, DERIVE_FMA(t195, t61, P[57])));
     const double t344 = DERIVE_FMA(t243, t179, DERIVE_FMA(t219, t155, DERIVE_FMA(t195, t62, P[58])));
     const double t345 = DERIVE_FMA(t243, t180, DERIVE_FMA(t219, t156, DERIVE_FMA(t195, t63, P[59])));
+    P_new[56] = t342;
+    P_new[194] = t342;
+    P_new[57] = t343;
+    P_new[218] = t343;
+    P_new[58] = t344;
+    P_new[242] = t344;
+    P_new[59] = t345;
+    P_new[266] = t345;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t346_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t64, ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -7745,6 +7694,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t347 = DERIVE_FMA(t243, t182, DERIVE_FMA(t219, t158, DERIVE_FMA(t195, t65, P[61])));
     const double t348 = DERIVE_FMA(t243, t183, DERIVE_FMA(t219, t159, DERIVE_FMA(t195, t66, P[62])));
     const double t349 = DERIVE_FMA(t243, t184, DERIVE_FMA(t219, t160, DERIVE_FMA(t195, t67, P[63])));
+    P_new[60] = t346;
+    P_new[290] = t346;
+    P_new[61] = t347;
+    P_new[314] = t347;
+    P_new[62] = t348;
+    P_new[338] = t348;
+    P_new[63] = t349;
+    P_new[362] = t349;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t350_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t68, ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -7755,6 +7712,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t351 = DERIVE_FMA(t243, t186, DERIVE_FMA(t219, t162, DERIVE_FMA(t195, t69, P[65])));
     const double t352 = DERIVE_FMA(t243, t187, DERIVE_FMA(t219, t163, DERIVE_FMA(t195, t70, P[66])));
     const double t353 = DERIVE_FMA(t243, t188, DERIVE_FMA(t219, t164, DERIVE_FMA(t195, t71, P[67])));
+    P_new[64] = t350;
+    P_new[386] = t350;
+    P_new[65] = t351;
+    P_new[410] = t351;
+    P_new[66] = t352;
+    P_new[434] = t352;
+    P_new[67] = t353;
+    P_new[458] = t353;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t354_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t72, ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -7765,6 +7730,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t355 = DERIVE_FMA(t243, t190, DERIVE_FMA(t219, t166, DERIVE_FMA(t195, t73, P[69])));
     const double t356 = DERIVE_FMA(t243, t191, DERIVE_FMA(t219, t167, DERIVE_FMA(t195, t74, P[70])));
     const double t357 = DERIVE_FMA(t243, t192, DERIVE_FMA(t219, t168, DERIVE_FMA(t195, t75, P[71])));
+    P_new[68] = t354;
+    P_new[482] = t354;
+    P_new[69] = t355;
+    P_new[506] = t355;
+    P_new[70] = t356;
+    P_new[530] = t356;
+    P_new[71] = t357;
+    P_new[554] = t357;
     #endif
     const double t358 = DERIVE_FMA(t196, t55, DERIVE_FMA(t172, t244, DERIVE_FMA(t148, t220, P[75])));
     #if DERIVE_VECTOR
@@ -7792,6 +7765,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t360 = DERIVE_FMA(t244, t174, DERIVE_FMA(t220, t150, DERIVE_FMA(t196, t57, P[77])));
     const double t361 = DERIVE_FMA(t244, t175, DERIVE_FMA(t220, t151, DERIVE_FMA(t196, t58, P[78])));
     const double t362 = DERIVE_FMA(t244, t176, DERIVE_FMA(t220, t152, DERIVE_FMA(t196, t59, P[79])));
+    P_new[76] = t359;
+    P_new[99] = t359;
+    P_new[77] = t360;
+    P_new[123] = t360;
+    P_new[78] = t361;
+    P_new[147] = t361;
+    P_new[79] = t362;
+    P_new[171] = t362;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t363_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t60, ((derive_vd){P[80], P[81], P[82], P[83]}));
@@ -7818,6 +7799,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t364 = DERIVE_FMA(t244, t178, DERIVE_FMA(t220, t154, DERIVE_FMA(t196, t61, P[81])));
     const double t365 = DERIVE_FMA(t244, t179, DERIVE_FMA(t220, t155, DERIVE_FMA(t196, t62, P[82])));
     const double t366 = DERIVE_FMA(t244, t180, DERIVE_FMA(t220, t156, DERIVE_FMA(t196, t63, P[83])));
+    P_new[80] = t363;
+    P_new[195] = t363;
+    P_new[81] = t364;
+    P_new[219] = t364;
+    P_new[82] = t365;
+    P_new[243] = t365;
+    P_new[83] = t366;
+    P_new[267] = t366;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t64, ((derive_vd){P[84], P[85], P[86], P[87]}));
@@ -7844,6 +7833,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t368 = DERIVE_FMA(t244, t182, DERIVE_FMA(t220, t158, DERIVE_FMA(t196, t65, P[85])));
     const double t369 = DERIVE_FMA(t244, t183, DERIVE_FMA(t220, t159, DERIVE_FMA(t196, t66, P[86])));
     const double t370 = DERIVE_FMA(t244, t184, DERIVE_FMA(t220, t160, DERIVE_FMA(t196, t67, P[87])));
+    P_new[84] = t367;
+    P_new[291] = t367;
+    P_new[85] = t368;
+    P_new[315] = t368;
+    P_new[86] = t369;
+    P_new[339] = t369;
+    P_new[87] = t370;
+    P_new[363] = t370;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t68, ((derive_vd){P[88], P[89], P[90], P[91]}));
@@ -7870,6 +7867,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t372 = DERIVE_FMA(t244, t186, DERIVE_FMA(t220, t162, DERIVE_FMA(t196, t69, P[89])));
     const double t373 = DERIVE_FMA(t244, t187, DERIVE_FMA(t220, t163, DERIVE_FMA(t196, t70, P[90])));
     const double t374 = DERIVE_FMA(t244, t188, DERIVE_FMA(t220, t164, DERIVE_FMA(t196, t71, P[91])));
+    P_new[88] = t371;
+    P_new[387] = t371;
+    P_new[89] = t372;
+    P_new[411] = t372;
+    P_new[90] = t373;
+    P_new[435] = t373;
+    P_new[91] = t374;
+    P_new[459] = t374;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t72, ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -7896,6 +7901,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t376 = DERIVE_FMA(t244, t190, DERIVE_FMA(t220, t166, DERIVE_FMA(t196, t73, P[93])));
     const double t377 = DERIVE_FMA(t244, t191, DERIVE_FMA(t220, t167, DERIVE_FMA(t196, t74, P[94])));
     const double t378 = DERIVE_FMA(t244, t192, DERIVE_FMA(t220, t168, DERIVE_FMA(t196, t75, P[95])));
+    P_new[92] = t375;
+    P_new[483] = t375;
+    P_new[93] = t376;
+    P_new[507] = t376;
+    P_new[94] = t377;
+    P_new[531] = t377;
+    P_new[95] = t378;
+    P_new[555] = t378;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t56, ((derive_vd){P[100], P[101], P[102], P[103]}));
@@ -7910,6 +7923,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t380 = DERIVE_FMA(t245, t174, DERIVE_FMA(t221, t150, DERIVE_FMA(t197, t57, P[101])));
     const double t381 = DERIVE_FMA(t245, t175, DERIVE_FMA(t221, t151, DERIVE_FMA(t197, t58, P[102])));
     const double t382 = DERIVE_FMA(t245, t176, DERIVE_FMA(t221, t152, DERIVE_FMA(t197, t59, P[103])));
+    P_new[100] = t379;
+    P_new[101] = t380;
+    P_new[124] = t380;
+    P_new[102] = t381;
+    P_new[148] = t381;
+    P_new[103] = t382;
+    P_new[172] = t382;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t60, ((derive_vd){P[104], P[105], P[106], P[107]}));
@@ -7920,6 +7940,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t384 = DERIVE_FMA(t245, t178, DERIVE_FMA(t221, t154, DERIVE_FMA(t197, t61, P[105])));
     const double t385 = DERIVE_FMA(t245, t179, DERIVE_FMA(t221, t155, DERIVE_FMA(t197, t62, P[106])));
     const double t386 = DERIVE_FMA(t245, t180, DERIVE_FMA(t221, t156, DERIVE_FMA(t197, t63, P[107])));
+    P_new[104] = t383;
+    P_new[196] = t383;
+    P_new[105] = t384;
+    P_new[220] = t384;
+    P_new[106] = t385;
+    P_new[244] = t385;
+    P_new[107] = t386;
+    P_new[268] = t386;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t64, ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -7930,6 +7958,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t388 = DERIVE_FMA(t245, t182, DERIVE_FMA(t221, t158, DERIVE_FMA(t197, t65, P[109])));
     const double t389 = DERIVE_FMA(t245, t183, DERIVE_FMA(t221, t159, DERIVE_FMA(t197, t66, P[110])));
     const double t390 = DERIVE_FMA(t245, t184, DERIVE_FMA(t221, t160, DERIVE_FMA(t197, t67, P[111])));
+    P_new[108] = t387;
+    P_new[292] = t387;
+    P_new[109] = t388;
+    P_new[316] = t388;
+    P_new[110] = t389;
+    P_new[340] = t389;
+    P_new[111] = t390;
+    P_new[364] = t390;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t391_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t68, ((derive_vd){P[112], P[113], P[114], P[115]}));
@@ -7940,6 +7976,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t392 = DERIVE_FMA(t245, t186, DERIVE_FMA(t221, t162, DERIVE_FMA(t197, t69, P[113])));
     const double t393 = DERIVE_FMA(t245, t187, DERIVE_FMA(t221, t163, DERIVE_FMA(t197, t70, P[114])));
     const double t394 = DERIVE_FMA(t245, t188, DERIVE_FMA(t221, t164, DERIVE_FMA(t197, t71, P[115])));
+    P_new[112] = t391;
+    P_new[388] = t391;
+    P_new[113] = t392;
+    P_new[412] = t392;
+    P_new[114] = t393;
+    P_new[436] = t393;
+    P_new[115] = t394;
+    P_new[460] = t394;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t72, ((derive_vd){P[116], P[117], P[118], P[119]}));
@@ -7950,6 +7994,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t396 = DERIVE_FMA(t245, t190, DERIVE_FMA(t221, t166, DERIVE_FMA(t197, t73, P[117])));
     const double t397 = DERIVE_FMA(t245, t191, DERIVE_FMA(t221, t167, DERIVE_FMA(t197, t74, P[118])));
     const double t398 = DERIVE_FMA(t245, t192, DERIVE_FMA(t221, t168, DERIVE_FMA(t197, t75, P[119])));
+    P_new[116] = t395;
+    P_new[484] = t395;
+    P_new[117] = t396;
+    P_new[508] = t396;
+    P_new[118] = t397;
+    P_new[532] = t397;
+    P_new[119] = t398;
+    P_new[556] = t398;
     #endif
     const double t399 = DERIVE_FMA(t198, t57, DERIVE_FMA(t174, t246, DERIVE_FMA(t150, t222, P[125])));
     const double t400 = DERIVE_FMA(t198, t58, DERIVE_FMA(t175, t246, DERIVE_FMA(t151, t222, P[126])));
@@ -7963,6 +8015,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t403 = DERIVE_FMA(t246, t178, DERIVE_FMA(t222, t154, DERIVE_FMA(t198, t61, P[129])));
     const double t404 = DERIVE_FMA(t246, t179, DERIVE_FMA(t222, t155, DERIVE_FMA(t198, t62, P[130])));
     const double t405 = DERIVE_FMA(t246, t180, DERIVE_FMA(t222, t156, DERIVE_FMA(t198, t63, P[131])));
+    P_new[128] = t402;
+    P_new[197] = t402;
+    P_new[129] = t403;
+    P_new[221] = t403;
+    P_new[130] = t404;
+    P_new[245] = t404;
+    P_new[131] = t405;
+    P_new[269] = t405;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t406_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t64, ((derive_vd){P[132], P[133], P[134], P[135]}));
@@ -7973,6 +8033,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t407 = DERIVE_FMA(t246, t182, DERIVE_FMA(t222, t158, DERIVE_FMA(t198, t65, P[133])));
     const double t408 = DERIVE_FMA(t246, t183, DERIVE_FMA(t222, t159, DERIVE_FMA(t198, t66, P[134])));
     const double t409 = DERIVE_FMA(t246, t184, DERIVE_FMA(t222, t160, DERIVE_FMA(t198, t67, P[135])));
+    P_new[132] = t406;
+    P_new[293] = t406;
+    P_new[133] = t407;
+    P_new[317] = t407;
+    P_new[134] = t408;
+    P_new[341] = t408;
+    P_new[135] = t409;
+    P_new[365] = t409;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t410_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t68, ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -7983,6 +8051,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t411 = DERIVE_FMA(t246, t186, DERIVE_FMA(t222, t162, DERIVE_FMA(t198, t69, P[137])));
     const double t412 = DERIVE_FMA(t246, t187, DERIVE_FMA(t222, t163, DERIVE_FMA(t198, t70, P[138])));
     const double t413 = DERIVE_FMA(t246, t188, DERIVE_FMA(t222, t164, DERIVE_FMA(t198, t71, P[139])));
+    P_new[136] = t410;
+    P_new[389] = t410;
+    P_new[137] = t411;
+    P_new[413] = t411;
+    P_new[138] = t412;
+    P_new[437] = t412;
+    P_new[139] = t413;
+    P_new[461] = t413;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t414_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t72, ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -7993,6 +8069,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t415 = DERIVE_FMA(t246, t190, DERIVE_FMA(t222, t166, DERIVE_FMA(t198, t73, P[141])));
     const double t416 = DERIVE_FMA(t246, t191, DERIVE_FMA(t222, t167, DERIVE_FMA(t198, t74, P[142])));
     const double t417 = DERIVE_FMA(t246, t192, DERIVE_FMA(t222, t168, DERIVE_FMA(t198, t75, P[143])));
+    P_new[140] = t414;
+    P_new[485] = t414;
+    P_new[141] = t415;
+    P_new[509] = t415;
+    P_new[142] = t416;
+    P_new[533] = t416;
+    P_new[143] = t417;
+    P_new[557] = t417;
     #endif
     const double t418 = DERIVE_FMA(t199, t58, DERIVE_FMA(t175, t247, DERIVE_FMA(t151, t223, P[150])));
     const double t419 = DERIVE_FMA(t199, t59, DERIVE_FMA(t176, t247, DERIVE_FMA(t152, t223, P[151])));
@@ -8005,6 +8089,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t421 = DERIVE_FMA(t247, t178, DERIVE_FMA(t223, t154, DERIVE_FMA(t199, t61, P[153])));
     const double t422 = DERIVE_FMA(t247, t179, DERIVE_FMA(t223, t155, DERIVE_FMA(t199, t62, P[154])));
     const double t423 = DERIVE_FMA(t247, t180, DERIVE_FMA(t223, t156, DERIVE_FMA(t199, t63, P[155])));
+    P_new[152] = t420;
+    P_new[198] = t420;
+    P_new[153] = t421;
+    P_new[222] = t421;
+    P_new[154] = t422;
+    P_new[246] = t422;
+    P_new[155] = t423;
+    P_new[270] = t423;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t424_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t64, ((derive_vd){P[156], P[157], P[158], P[159]}));
@@ -8015,6 +8107,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t425 = DERIVE_FMA(t247, t182, DERIVE_FMA(t223, t158, DERIVE_FMA(t199, t65, P[157])));
     const double t426 = DERIVE_FMA(t247, t183, DERIVE_FMA(t223, t159, DERIVE_FMA(t199, t66, P[158])));
     const double t427 = DERIVE_FMA(t247, t184, DERIVE_FMA(t223, t160, DERIVE_FMA(t199, t67, P[159])));
+    P_new[156] = t424;
+    P_new[294] = t424;
+    P_new[157] = t425;
+    P_new[318] = t425;
+    P_new[158] = t426;
+    P_new[342] = t426;
+    P_new[159] = t427;
+    P_new[366] = t427;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t428_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t68, ((derive_vd){P[160], P[161], P[162], P[163]}));
@@ -8025,6 +8125,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t429 = DERIVE_FMA(t247, t186, DERIVE_FMA(t223, t162, DERIVE_FMA(t199, t69, P[161])));
     const double t430 = DERIVE_FMA(t247, t187, DERIVE_FMA(t223, t163, DERIVE_FMA(t199, t70, P[162])));
     const double t431 = DERIVE_FMA(t247, t188, DERIVE_FMA(t223, t164, DERIVE_FMA(t199, t71, P[163])));
+    P_new[160] = t428;
+    P_new[390] = t428;
+    P_new[161] = t429;
+    P_new[414] = t429;
+    P_new[162] = t430;
+    P_new[438] = t430;
+    P_new[163] = t431;
+    P_new[462] = t431;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t432_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t72, ((derive_vd){P[164], P[165], P[166], P[167]}));
@@ -8035,6 +8143,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t433 = DERIVE_FMA(t247, t190, DERIVE_FMA(t223, t166, DERIVE_FMA(t199, t73, P[165])));
     const double t434 = DERIVE_FMA(t247, t191, DERIVE_FMA(t223, t167, DERIVE_FMA(t199, t74, P[166])));
     const double t435 = DERIVE_FMA(t247, t192, DERIVE_FMA(t223, t168, DERIVE_FMA(t199, t75, P[167])));
+    P_new[164] = t432;
+    P_new[486] = t432;
+    P_new[165] = t433;
+    P_new[510] = t433;
+    P_new[166] = t434;
+    P_new[534] = t434;
+    P_new[167] = t435;
+    P_new[558] = t435;
     #endif
     const double t436 = DERIVE_FMA(t200, t59, DERIVE_FMA(t176, t248, DERIVE_FMA(t152, t224, P[175])));
     #if DERIVE_VECTOR
@@ -8062,6 +8178,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t438 = DERIVE_FMA(t248, t178, DERIVE_FMA(t224, t154, DERIVE_FMA(t200, t61, P[177])));
     const double t439 = DERIVE_FMA(t248, t179, DERIVE_FMA(t224, t155, DERIVE_FMA(t200, t62, P[178])));
     const double t440 = DERIVE_FMA(t248, t180, DERIVE_FMA(t224, t156, DERIVE_FMA(t200, t63, P[179])));
+    P_new[176] = t437;
+    P_new[199] = t437;
+    P_new[177] = t438;
+    P_new[223] = t438;
+    P_new[178] = t439;
+    P_new[247] = t439;
+    P_new[179] = t440;
+    P_new[271] = t440;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t441_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t64, ((derive_vd){P[180], P[181], P[182], P[183]}));
@@ -8088,6 +8212,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t442 = DERIVE_FMA(t248, t182, DERIVE_FMA(t224, t158, DERIVE_FMA(t200, t65, P[181])));
     const double t443 = DERIVE_FMA(t248, t183, DERIVE_FMA(t224, t159, DERIVE_FMA(t200, t66, P[182])));
     const double t444 = DERIVE_FMA(t248, t184, DERIVE_FMA(t224, t160, DERIVE_FMA(t200, t67, P[183])));
+    P_new[180] = t441;
+    P_new[295] = t441;
+    P_new[181] = t442;
+    P_new[319] = t442;
+    P_new[182] = t443;
+    P_new[343] = t443;
+    P_new[183] = t444;
+    P_new[367] = t444;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t445_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t68, ((derive_vd){P[184], P[185], P[186], P[187]}));
@@ -8114,6 +8246,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t446 = DERIVE_FMA(t248, t186, DERIVE_FMA(t224, t162, DERIVE_FMA(t200, t69, P[185])));
     const double t447 = DERIVE_FMA(t248, t187, DERIVE_FMA(t224, t163, DERIVE_FMA(t200, t70, P[186])));
     const double t448 = DERIVE_FMA(t248, t188, DERIVE_FMA(t224, t164, DERIVE_FMA(t200, t71, P[187])));
+    P_new[184] = t445;
+    P_new[391] = t445;
+    P_new[185] = t446;
+    P_new[415] = t446;
+    P_new[186] = t447;
+    P_new[439] = t447;
+    P_new[187] = t448;
+    P_new[463] = t448;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t449_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t72, ((derive_vd){P[188], P[189], P[190], P[191]}));
@@ -8140,6 +8280,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t450 = DERIVE_FMA(t248, t190, DERIVE_FMA(t224, t166, DERIVE_FMA(t200, t73, P[189])));
     const double t451 = DERIVE_FMA(t248, t191, DERIVE_FMA(t224, t167, DERIVE_FMA(t200, t74, P[190])));
     const double t452 = DERIVE_FMA(t248, t192, DERIVE_FMA(t224, t168, DERIVE_FMA(t200, t75, P[191])));
+    P_new[188] = t449;
+    P_new[487] = t449;
+    P_new[189] = t450;
+    P_new[511] = t450;
+    P_new[190] = t451;
+    P_new[535] = t451;
+    P_new[191] = t452;
+    P_new[559] = t452;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t453_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t60, ((derive_vd){P[200], P[201], P[202], P[203]}));
@@ -8154,6 +8302,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t454 = DERIVE_FMA(t249, t178, DERIVE_FMA(t225, t154, DERIVE_FMA(t201, t61, P[201])));
     const double t455 = DERIVE_FMA(t249, t179, DERIVE_FMA(t225, t155, DERIVE_FMA(t201, t62, P[202])));
     const double t456 = DERIVE_FMA(t249, t180, DERIVE_FMA(t225, t156, DERIVE_FMA(t201, t63, P[203])));
+    P_new[200] = t453;
+    P_new[201] = t454;
+    P_new[224] = t454;
+    P_new[202] = t455;
+    P_new[248] = t455;
+    P_new[203] = t456;
+    P_new[272] = t456;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t64, ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -8164,6 +8319,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t458 = DERIVE_FMA(t249, t182, DERIVE_FMA(t225, t158, DERIVE_FMA(t201, t65, P[205])));
     const double t459 = DERIVE_FMA(t249, t183, DERIVE_FMA(t225, t159, DERIVE_FMA(t201, t66, P[206])));
     const double t460 = DERIVE_FMA(t249, t184, DERIVE_FMA(t225, t160, DERIVE_FMA(t201, t67, P[207])));
+    P_new[204] = t457;
+    P_new[296] = t457;
+    P_new[205] = t458;
+    P_new[320] = t458;
+    P_new[206] = t459;
+    P_new[344] = t459;
+    P_new[207] = t460;
+    P_new[368] = t460;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t68, ((derive_vd){P[208], P[209], P[210], P[211]}));
@@ -8174,6 +8337,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t462 = DERIVE_FMA(t249, t186, DERIVE_FMA(t225, t162, DERIVE_FMA(t201, t69, P[209])));
     const double t463 = DERIVE_FMA(t249, t187, DERIVE_FMA(t225, t163, DERIVE_FMA(t201, t70, P[210])));
     const double t464 = DERIVE_FMA(t249, t188, DERIVE_FMA(t225, t164, DERIVE_FMA(t201, t71, P[211])));
+    P_new[208] = t461;
+    P_new[392] = t461;
+    P_new[209] = t462;
+    P_new[416] = t462;
+    P_new[210] = t463;
+    P_new[440] = t463;
+    P_new[211] = t464;
+    P_new[464] = t464;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t72, ((derive_vd){P[212], P[213], P[214], P[215]}));
@@ -8184,6 +8355,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t466 = DERIVE_FMA(t249, t190, DERIVE_FMA(t225, t166, DERIVE_FMA(t201, t73, P[213])));
     const double t467 = DERIVE_FMA(t249, t191, DERIVE_FMA(t225, t167, DERIVE_FMA(t201, t74, P[214])));
     const double t468 = DERIVE_FMA(t249, t192, DERIVE_FMA(t225, t168, DERIVE_FMA(t201, t75, P[215])));
+    P_new[212] = t465;
+    P_new[488] = t465;
+    P_new[213] = t466;
+    P_new[512] = t466;
+    P_new[214] = t467;
+    P_new[536] = t467;
+    P_new[215] = t468;
+    P_new[560] = t468;
     #endif
     const double t469 = DERIVE_FMA(t202, t61, DERIVE_FMA(t178, t250, DERIVE_FMA(t154, t226, P[225])));
     const double t470 = DERIVE_FMA(t202, t62, DERIVE_FMA(t179, t250, DERIVE_FMA(t155, t226, P[226])));
@@ -8197,6 +8376,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t473 = DERIVE_FMA(t250, t182, DERIVE_FMA(t226, t158, DERIVE_FMA(t202, t65, P[229])));
     const double t474 = DERIVE_FMA(t250, t183, DERIVE_FMA(t226, t159, DERIVE_FMA(t202, t66, P[230])));
     const double t475 = DERIVE_FMA(t250, t184, DERIVE_FMA(t226, t160, DERIVE_FMA(t202, t67, P[231])));
+    P_new[228] = t472;
+    P_new[297] = t472;
+    P_new[229] = t473;
+    P_new[321] = t473;
+    P_new[230] = t474;
+    P_new[345] = t474;
+    P_new[231] = t475;
+    P_new[369] = t475;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t476_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t68, ((derive_vd){P[232], P[233], P[234], P[235]}));
@@ -8207,6 +8394,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t477 = DERIVE_FMA(t250, t186, DERIVE_FMA(t226, t162, DERIVE_FMA(t202, t69, P[233])));
     const double t478 = DERIVE_FMA(t250, t187, DERIVE_FMA(t226, t163, DERIVE_FMA(t202, t70, P[234])));
     const double t479 = DERIVE_FMA(t250, t188, DERIVE_FMA(t226, t164, DERIVE_FMA(t202, t71, P[235])));
+    P_new[232] = t476;
+    P_new[393] = t476;
+    P_new[233] = t477;
+    P_new[417] = t477;
+    P_new[234] = t478;
+    P_new[441] = t478;
+    P_new[235] = t479;
+    P_new[465] = t479;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t480_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t72, ((derive_vd){P[236], P[237], P[238], P[239]}));
@@ -8217,6 +8412,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t481 = DERIVE_FMA(t250, t190, DERIVE_FMA(t226, t166, DERIVE_FMA(t202, t73, P[237])));
     const double t482 = DERIVE_FMA(t250, t191, DERIVE_FMA(t226, t167, DERIVE_FMA(t202, t74, P[238])));
     const double t483 = DERIVE_FMA(t250, t192, DERIVE_FMA(t226, t168, DERIVE_FMA(t202, t75, P[239])));
+    P_new[236] = t480;
+    P_new[489] = t480;
+    P_new[237] = t481;
+    P_new[513] = t481;
+    P_new[238] = t482;
+    P_new[537] = t482;
+    P_new[239] = t483;
+    P_new[561] = t483;
     #endif
     const double t484 = DERIVE_FMA(t203, t62, DERIVE_FMA(t179, t251, DERIVE_FMA(t155, t227, P[250])));
     const double t485 = DERIVE_FMA(t203, t63, DERIVE_FMA(t180, t251, DERIVE_FMA(t156, t227, P[251])));
@@ -8229,6 +8432,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t487 = DERIVE_FMA(t251, t182, DERIVE_FMA(t227, t158, DERIVE_FMA(t203, t65, P[253])));
     const double t488 = DERIVE_FMA(t251, t183, DERIVE_FMA(t227, t159, DERIVE_FMA(t203, t66, P[254])));
     const double t489 = DERIVE_FMA(t251, t184, DERIVE_FMA(t227, t160, DERIVE_FMA(t203, t67, P[255])));
+    P_new[252] = t486;
+    P_new[298] = t486;
+    P_new[253] = t487;
+    P_new[322] = t487;
+    P_new[254] = t488;
+    P_new[346] = t488;
+    P_new[255] = t489;
+    P_new[370] = t489;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t490_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t68, ((derive_vd){P[256], P[257], P[258], P[259]}));
@@ -8239,6 +8450,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t491 = DERIVE_FMA(t251, t186, DERIVE_FMA(t227, t162, DERIVE_FMA(t203, t69, P[257])));
     const double t492 = DERIVE_FMA(t251, t187, DERIVE_FMA(t227, t163, DERIVE_FMA(t203, t70, P[258])));
     const double t493 = DERIVE_FMA(t251, t188, DERIVE_FMA(t227, t164, DERIVE_FMA(t203, t71, P[259])));
+    P_new[256] = t490;
+    P_new[394] = t490;
+    P_new[257] = t491;
+    P_new[418] = t491;
+    P_new[258] = t492;
+    P_new[442] = t492;
+    P_new[259] = t493;
+    P_new[466] = t493;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t494_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t72, ((derive_vd){P[260], P[261], P[262], P[263]}));
@@ -8249,6 +8468,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t495 = DERIVE_FMA(t251, t190, DERIVE_FMA(t227, t166, DERIVE_FMA(t203, t73, P[261])));
     const double t496 = DERIVE_FMA(t251, t191, DERIVE_FMA(t227, t167, DERIVE_FMA(t203, t74, P[262])));
     const double t497 = DERIVE_FMA(t251, t192, DERIVE_FMA(t227, t168, DERIVE_FMA(t203, t75, P[263])));
+    P_new[260] = t494;
+    P_new[490] = t494;
+    P_new[261] = t495;
+    P_new[514] = t495;
+    P_new[262] = t496;
+    P_new[538] = t496;
+    P_new[263] = t497;
+    P_new[562] = t497;
     #endif
     const double t498 = DERIVE_FMA(t204, t63, DERIVE_FMA(t180, t252, DERIVE_FMA(t156, t228, P[275])));
     #if DERIVE_VECTOR
@@ -8276,6 +8503,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t500 = DERIVE_FMA(t252, t182, DERIVE_FMA(t228, t158, DERIVE_FMA(t204, t65, P[277])));
     const double t501 = DERIVE_FMA(t252, t183, DERIVE_FMA(t228, t159, DERIVE_FMA(t204, t66, P[278])));
     const double t502 = DERIVE_FMA(t252, t184, DERIVE_FMA(t228, t160, DERIVE_FMA(t204, t67, P[279])));
+    P_new[276] = t499;
+    P_new[299] = t499;
+    P_new[277] = t500;
+    P_new[323] = t500;
+    P_new[278] = t501;
+    P_new[347] = t501;
+    P_new[279] = t502;
+    P_new[371] = t502;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t503_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t68, ((derive_vd){P[280], P[281], P[282], P[283]}));
@@ -8302,6 +8537,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t504 = DERIVE_FMA(t252, t186, DERIVE_FMA(t228, t162, DERIVE_FMA(t204, t69, P[281])));
     const double t505 = DERIVE_FMA(t252, t187, DERIVE_FMA(t228, t163, DERIVE_FMA(t204, t70, P[282])));
     const double t506 = DERIVE_FMA(t252, t188, DERIVE_FMA(t228, t164, DERIVE_FMA(t204, t71, P[283])));
+    P_new[280] = t503;
+    P_new[395] = t503;
+    P_new[281] = t504;
+    P_new[419] = t504;
+    P_new[282] = t505;
+    P_new[443] = t505;
+    P_new[283] = t506;
+    P_new[467] = t506;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t507_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t72, ((derive_vd){P[284], P[285], P[286], P[287]}));
@@ -8328,6 +8571,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t508 = DERIVE_FMA(t252, t190, DERIVE_FMA(t228, t166, DERIVE_FMA(t204, t73, P[285])));
     const double t509 = DERIVE_FMA(t252, t191, DERIVE_FMA(t228, t167, DERIVE_FMA(t204, t74, P[286])));
     const double t510 = DERIVE_FMA(t252, t192, DERIVE_FMA(t228, t168, DERIVE_FMA(t204, t75, P[287])));
+    P_new[284] = t507;
+    P_new[491] = t507;
+    P_new[285] = t508;
+    P_new[515] = t508;
+    P_new[286] = t509;
+    P_new[539] = t509;
+    P_new[287] = t510;
+    P_new[563] = t510;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t511_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t64, ((derive_vd){P[300], P[301], P[302], P[303]}));
@@ -8342,6 +8593,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t512 = DERIVE_FMA(t253, t182, DERIVE_FMA(t229, t158, DERIVE_FMA(t205, t65, P[301])));
     const double t513 = DERIVE_FMA(t253, t183, DERIVE_FMA(t229, t159, DERIVE_FMA(t205, t66, P[302])));
     const double t514 = DERIVE_FMA(t253, t184, DERIVE_FMA(t229, t160, DERIVE_FMA(t205, t67, P[303])));
+    P_new[300] = t511;
+    P_new[301] = t512;
+    P_new[324] = t512;
+    P_new[302] = t513;
+    P_new[348] = t513;
+    P_new[303] = t514;
+    P_new[372] = t514;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t515_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t68, ((derive_vd){P[304], P[305], P[306], P[307]}));
@@ -8352,6 +8610,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t516 = DERIVE_FMA(t253, t186, DERIVE_FMA(t229, t162, DERIVE_FMA(t205, t69, P[305])));
     const double t517 = DERIVE_FMA(t253, t187, DERIVE_FMA(t229, t163, DERIVE_FMA(t205, t70, P[306])));
     const double t518 = DERIVE_FMA(t253, t188, DERIVE_FMA(t229, t164, DERIVE_FMA(t205, t71, P[307])));
+    P_new[304] = t515;
+    P_new[396] = t515;
+    P_new[305] = t516;
+    P_new[420] = t516;
+    P_new[306] = t517;
+    P_new[444] = t517;
+    P_new[307] = t518;
+    P_new[468] = t518;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t72, ((derive_vd){P[308], P[309], P[310], P[311]}));
@@ -8362,6 +8628,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t520 = DERIVE_FMA(t253, t190, DERIVE_FMA(t229, t166, DERIVE_FMA(t205, t73, P[309])));
     const double t521 = DERIVE_FMA(t253, t191, DERIVE_FMA(t229, t167, DERIVE_FMA(t205, t74, P[310])));
     const double t522 = DERIVE_FMA(t253, t192, DERIVE_FMA(t229, t168, DERIVE_FMA(t205, t75, P[311])));
+    P_new[308] = t519;
+    P_new[492] = t519;
+    P_new[309] = t520;
+    P_new[516] = t520;
+    P_new[310] = t521;
+    P_new[540] = t521;
+    P_new[311] = t522;
+    P_new[564] = t522;
     #endif
     const double t523 = DERIVE_FMA(t206, t65, DERIVE_FMA(t182, t254, DERIVE_FMA(t158, t230, P[325])));
     const double t524 = DERIVE_FMA(t206, t66, DERIVE_FMA(t183, t254, DERIVE_FMA(t159, t230, P[326])));
@@ -8375,6 +8649,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t527 = DERIVE_FMA(t254, t186, DERIVE_FMA(t230, t162, DERIVE_FMA(t206, t69, P[329])));
     const double t528 = DERIVE_FMA(t254, t187, DERIVE_FMA(t230, t163, DERIVE_FMA(t206, t70, P[330])));
     const double t529 = DERIVE_FMA(t254, t188, DERIVE_FMA(t230, t164, DERIVE_FMA(t206, t71, P[331])));
+    P_new[328] = t526;
+    P_new[397] = t526;
+    P_new[329] = t527;
+    P_new[421] = t527;
+    P_new[330] = t528;
+    P_new[445] = t528;
+    P_new[331] = t529;
+    P_new[469] = t529;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t530_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t72, ((derive_vd){P[332], P[333], P[334], P[335]}));
@@ -8385,6 +8667,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t531 = DERIVE_FMA(t254, t190, DERIVE_FMA(t230, t166, DERIVE_FMA(t206, t73, P[333])));
     const double t532 = DERIVE_FMA(t254, t191, DERIVE_FMA(t230, t167, DERIVE_FMA(t206, t74, P[334])));
     const double t533 = DERIVE_FMA(t254, t192, DERIVE_FMA(t230, t168, DERIVE_FMA(t206, t75, P[335])));
+    P_new[332] = t530;
+    P_new[493] = t530;
+    P_new[333] = t531;
+    P_new[517] = t531;
+    P_new[334] = t532;
+    P_new[541] = t532;
+    P_new[335] = t533;
+    P_new[565] = t533;
     #endif
     const double t534 = DERIVE_FMA(t207, t66, DERIVE_FMA(t183, t255, DERIVE_FMA(t159, t231, P[350])));
     const double t535 = DERIVE_FMA(t207, t67, DERIVE_FMA(t184, t255, DERIVE_FMA(t160, t231, P[351])));
@@ -8397,6 +8687,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t537 = DERIVE_FMA(t255, t186, DERIVE_FMA(t231, t162, DERIVE_FMA(t207, t69, P[353])));
     const double t538 = DERIVE_FMA(t255, t187, DERIVE_FMA(t231, t163, DERIVE_FMA(t207, t70, P[354])));
     const double t539 = DERIVE_FMA(t255, t188, DERIVE_FMA(t231, t164, DERIVE_FMA(t207, t71, P[355])));
+    P_new[352] = t536;
+    P_new[398] = t536;
+    P_new[353] = t537;
+    P_new[422] = t537;
+    P_new[354] = t538;
+    P_new[446] = t538;
+    P_new[355] = t539;
+    P_new[470] = t539;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t540_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t72, ((derive_vd){P[356], P[357], P[358], P[359]}));
@@ -8407,6 +8705,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t541 = DERIVE_FMA(t255, t190, DERIVE_FMA(t231, t166, DERIVE_FMA(t207, t73, P[357])));
     const double t542 = DERIVE_FMA(t255, t191, DERIVE_FMA(t231, t167, DERIVE_FMA(t207, t74, P[358])));
     const double t543 = DERIVE_FMA(t255, t192, DERIVE_FMA(t231, t168, DERIVE_FMA(t207, t75, P[359])));
+    P_new[356] = t540;
+    P_new[494] = t540;
+    P_new[357] = t541;
+    P_new[518] = t541;
+    P_new[358] = t542;
+    P_new[542] = t542;
+    P_new[359] = t543;
+    P_new[566] = t543;
     #endif
     const double t544 = DERIVE_FMA(t208, t67, DERIVE_FMA(t184, t256, DERIVE_FMA(t160, t232, P[375])));
     #if DERIVE_VECTOR
@@ -8434,6 +8740,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t546 = DERIVE_FMA(t256, t186, DERIVE_FMA(t232, t162, DERIVE_FMA(t208, t69, P[377])));
     const double t547 = DERIVE_FMA(t256, t187, DERIVE_FMA(t232, t163, DERIVE_FMA(t208, t70, P[378])));
     const double t548 = DERIVE_FMA(t256, t188, DERIVE_FMA(t232, t164, DERIVE_FMA(t208, t71, P[379])));
+    P_new[376] = t545;
+    P_new[399] = t545;
+    P_new[377] = t546;
+    P_new[423] = t546;
+    P_new[378] = t547;
+    P_new[447] = t547;
+    P_new[379] = t548;
+    P_new[471] = t548;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t549_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t72, ((derive_vd){P[380], P[381], P[382], P[383]}));
@@ -8460,6 +8774,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t550 = DERIVE_FMA(t256, t190, DERIVE_FMA(t232, t166, DERIVE_FMA(t208, t73, P[381])));
     const double t551 = DERIVE_FMA(t256, t191, DERIVE_FMA(t232, t167, DERIVE_FMA(t208, t74, P[382])));
     const double t552 = DERIVE_FMA(t256, t192, DERIVE_FMA(t232, t168, DERIVE_FMA(t208, t75, P[383])));
+    P_new[380] = t549;
+    P_new[495] = t549;
+    P_new[381] = t550;
+    P_new[519] = t550;
+    P_new[382] = t551;
+    P_new[543] = t551;
+    P_new[383] = t552;
+    P_new[567] = t552;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t553_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t68, ((derive_vd){P[400], P[401], P[402], P[403]}));
@@ -8474,6 +8796,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t554 = DERIVE_FMA(t257, t186, DERIVE_FMA(t233, t162, DERIVE_FMA(t209, t69, P[401])));
     const double t555 = DERIVE_FMA(t257, t187, DERIVE_FMA(t233, t163, DERIVE_FMA(t209, t70, P[402])));
     const double t556 = DERIVE_FMA(t257, t188, DERIVE_FMA(t233, t164, DERIVE_FMA(t209, t71, P[403])));
+    P_new[400] = t553;
+    P_new[401] = t554;
+    P_new[424] = t554;
+    P_new[402] = t555;
+    P_new[448] = t555;
+    P_new[403] = t556;
+    P_new[472] = t556;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t557_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t72, ((derive_vd){P[404], P[405], P[406], P[407]}));
@@ -8484,6 +8813,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t558 = DERIVE_FMA(t257, t190, DERIVE_FMA(t233, t166, DERIVE_FMA(t209, t73, P[405])));
     const double t559 = DERIVE_FMA(t257, t191, DERIVE_FMA(t233, t167, DERIVE_FMA(t209, t74, P[406])));
     const double t560 = DERIVE_FMA(t257, t192, DERIVE_FMA(t233, t168, DERIVE_FMA(t209, t75, P[407])));
+    P_new[404] = t557;
+    P_new[496] = t557;
+    P_new[405] = t558;
+    P_new[520] = t558;
+    P_new[406] = t559;
+    P_new[544] = t559;
+    P_new[407] = t560;
+    P_new[568] = t560;
     #endif
     const double t561 = DERIVE_FMA(t210, t69, DERIVE_FMA(t186, t258, DERIVE_FMA(t162, t234, P[425])));
     const double t562 = DERIVE_FMA(t210, t70, DERIVE_FMA(t187, t258, DERIVE_FMA(t163, t234, P[426])));
@@ -8497,6 +8834,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t565 = DERIVE_FMA(t258, t190, DERIVE_FMA(t234, t166, DERIVE_FMA(t210, t73, P[429])));
     const double t566 = DERIVE_FMA(t258, t191, DERIVE_FMA(t234, t167, DERIVE_FMA(t210, t74, P[430])));
     const double t567 = DERIVE_FMA(t258, t192, DERIVE_FMA(t234, t168, DERIVE_FMA(t210, t75, P[431])));
+    P_new[428] = t564;
+    P_new[497] = t564;
+    P_new[429] = t565;
+    P_new[521] = t565;
+    P_new[430] = t566;
+    P_new[545] = t566;
+    P_new[431] = t567;
+    P_new[569] = t567;
     #endif
     const double t568 = DERIVE_FMA(t211, t70, DERIVE_FMA(t187, t259, DERIVE_FMA(t163, t235, P[450])));
     const double t569 = DERIVE_FMA(t211, t71, DERIVE_FMA(t188, t259, DERIVE_FMA(t164, t235, P[451])));
@@ -8509,6 +8854,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t571 = DERIVE_FMA(t259, t190, DERIVE_FMA(t235, t166, DERIVE_FMA(t211, t73, P[453])));
     const double t572 = DERIVE_FMA(t259, t191, DERIVE_FMA(t235, t167, DERIVE_FMA(t211, t74, P[454])));
     const double t573 = DERIVE_FMA(t259, t192, DERIVE_FMA(t235, t168, DERIVE_FMA(t211, t75, P[455])));
+    P_new[452] = t570;
+    P_new[498] = t570;
+    P_new[453] = t571;
+    P_new[522] = t571;
+    P_new[454] = t572;
+    P_new[546] = t572;
+    P_new[455] = t573;
+    P_new[570] = t573;
     #endif
     const double t574 = DERIVE_FMA(t212, t71, DERIVE_FMA(t188, t260, DERIVE_FMA(t164, t236, P[475])));
     #if DERIVE_VECTOR
@@ -8536,6 +8889,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t576 = DERIVE_FMA(t260, t190, DERIVE_FMA(t236, t166, DERIVE_FMA(t212, t73, P[477])));
     const double t577 = DERIVE_FMA(t260, t191, DERIVE_FMA(t236, t167, DERIVE_FMA(t212, t74, P[478])));
     const double t578 = DERIVE_FMA(t260, t192, DERIVE_FMA(t236, t168, DERIVE_FMA(t212, t75, P[479])));
+    P_new[476] = t575;
+    P_new[499] = t575;
+    P_new[477] = t576;
+    P_new[523] = t576;
+    P_new[478] = t577;
+    P_new[547] = t577;
+    P_new[479] = t578;
+    P_new[571] = t578;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t579_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t72, ((derive_vd){P[500], P[501], P[502], P[503]}));
@@ -8550,6 +8911,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t580 = DERIVE_FMA(t261, t190, DERIVE_FMA(t237, t166, DERIVE_FMA(t213, t73, P[501])));
     const double t581 = DERIVE_FMA(t261, t191, DERIVE_FMA(t237, t167, DERIVE_FMA(t213, t74, P[502])));
     const double t582 = DERIVE_FMA(t261, t192, DERIVE_FMA(t237, t168, DERIVE_FMA(t213, t75, P[503])));
+    P_new[500] = t579;
+    P_new[501] = t580;
+    P_new[524] = t580;
+    P_new[502] = t581;
+    P_new[548] = t581;
+    P_new[503] = t582;
+    P_new[572] = t582;
     #endif
     const double t583 = DERIVE_FMA(t214, t73, DERIVE_FMA(t190, t262, DERIVE_FMA(t166, t238, P[525])));
     const double t584 = DERIVE_FMA(t214, t74, DERIVE_FMA(t191, t262, DERIVE_FMA(t167, t238, P[526])));
@@ -8645,599 +9013,57 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     x_new[1] = t592;
     x_new[2] = t593;
     x_new[3] = t594;
-    x_new[4] = t269;
-    x_new[5] = t270;
-    x_new[6] = t271;
-    x_new[7] = t272;
-    x_new[8] = t273;
-    x_new[9] = t274;
-    x_new[10] = t275;
-    x_new[11] = t276;
-    x_new[12] = t277;
-    x_new[13] = t278;
-    x_new[14] = t279;
-    x_new[15] = t280;
-    x_new[16] = t281;
-    x_new[17] = t282;
-    x_new[18] = t283;
-    x_new[19] = t284;
-    x_new[20] = t285;
-    x_new[21] = t286;
-    x_new[22] = t287;
-    x_new[23] = t288;
-    P_new[0] = t289;
-    P_new[1] = t290;
-    P_new[2] = t291;
-    P_new[3] = t292;
-    P_new[4] = t293;
-    P_new[5] = t294;
-    P_new[6] = t295;
-    P_new[7] = t296;
-    P_new[8] = t297;
-    P_new[9] = t298;
-    P_new[10] = t299;
-    P_new[11] = t300;
-    P_new[12] = t301;
-    P_new[13] = t302;
-    P_new[14] = t303;
-    P_new[15] = t304;
-    P_new[16] = t305;
-    P_new[17] = t306;
-    P_new[18] = t307;
-    P_new[19] = t308;
-    P_new[20] = t309;
-    P_new[21] = t310;
-    P_new[22] = t311;
-    P_new[23] = t312;
-    P_new[24] = t290;
     P_new[25] = t313;
     P_new[26] = t314;
     P_new[27] = t315;
-    P_new[28] = t316;
-    P_new[29] = t317;
-    P_new[30] = t318;
-    P_new[31] = t319;
-    P_new[32] = t320;
-    P_new[33] = t321;
-    P_new[34] = t322;
-    P_new[35] = t323;
-    P_new[36] = t324;
-    P_new[37] = t325;
-    P_new[38] = t326;
-    P_new[39] = t327;
-    P_new[40] = t328;
-    P_new[41] = t329;
-    P_new[42] = t330;
-    P_new[43] = t331;
-    P_new[44] = t332;
-    P_new[45] = t333;
-    P_new[46] = t334;
-    P_new[47] = t335;
-    P_new[48] = t291;
     P_new[49] = t314;
     P_new[50] = t336;
     P_new[51] = t337;
-    P_new[52] = t338;
-    P_new[53] = t339;
-    P_new[54] = t340;
-    P_new[55] = t341;
-    P_new[56] = t342;
-    P_new[57] = t343;
-    P_new[58] = t344;
-    P_new[59] = t345;
-    P_new[60] = t346;
-    P_new[61] = t347;
-    P_new[62] = t348;
-    P_new[63] = t349;
-    P_new[64] = t350;
-    P_new[65] = t351;
-    P_new[66] = t352;
-    P_new[67] = t353;
-    P_new[68] = t354;
-    P_new[69] = t355;
-    P_new[70] = t356;
-    P_new[71] = t357;
-    P_new[72] = t292;
     P_new[73] = t315;
     P_new[74] = t337;
     P_new[75] = t358;
-    P_new[76] = t359;
-    P_new[77] = t360;
-    P_new[78] = t361;
-    P_new[79] = t362;
-    P_new[80] = t363;
-    P_new[81] = t364;
-    P_new[82] = t365;
-    P_new[83] = t366;
-    P_new[84] = t367;
-    P_new[85] = t368;
-    P_new[86] = t369;
-    P_new[87] = t370;
-    P_new[88] = t371;
-    P_new[89] = t372;
-    P_new[90] = t373;
-    P_new[91] = t374;
-    P_new[92] = t375;
-    P_new[93] = t376;
-    P_new[94] = t377;
-    P_new[95] = t378;
-    P_new[96] = t293;
-    P_new[97] = t316;
-    P_new[98] = t338;
-    P_new[99] = t359;
-    P_new[100] = t379;
-    P_new[101] = t380;
-    P_new[102] = t381;
-    P_new[103] = t382;
-    P_new[104] = t383;
-    P_new[105] = t384;
-    P_new[106] = t385;
-    P_new[107] = t386;
-    P_new[108] = t387;
-    P_new[109] = t388;
-    P_new[110] = t389;
-    P_new[111] = t390;
-    P_new[112] = t391;
-    P_new[113] = t392;
-    P_new[114] = t393;
-    P_new[115] = t394;
-    P_new[116] = t395;
-    P_new[117] = t396;
-    P_new[118] = t397;
-    P_new[119] = t398;
-    P_new[120] = t294;
-    P_new[121] = t317;
-    P_new[122] = t339;
-    P_new[123] = t360;
-    P_new[124] = t380;
     P_new[125] = t399;
     P_new[126] = t400;
     P_new[127] = t401;
-    P_new[128] = t402;
-    P_new[129] = t403;
-    P_new[130] = t404;
-    P_new[131] = t405;
-    P_new[132] = t406;
-    P_new[133] = t407;
-    P_new[134] = t408;
-    P_new[135] = t409;
-    P_new[136] = t410;
-    P_new[137] = t411;
-    P_new[138] = t412;
-    P_new[139] = t413;
-    P_new[140] = t414;
-    P_new[141] = t415;
-    P_new[142] = t416;
-    P_new[143] = t417;
-    P_new[144] = t295;
-    P_new[145] = t318;
-    P_new[146] = t340;
-    P_new[147] = t361;
-    P_new[148] = t381;
     P_new[149] = t400;
     P_new[150] = t418;
     P_new[151] = t419;
-    P_new[152] = t420;
-    P_new[153] = t421;
-    P_new[154] = t422;
-    P_new[155] = t423;
-    P_new[156] = t424;
-    P_new[157] = t425;
-    P_new[158] = t426;
-    P_new[159] = t427;
-    P_new[160] = t428;
-    P_new[161] = t429;
-    P_new[162] = t430;
-    P_new[163] = t431;
-    P_new[164] = t432;
-    P_new[165] = t433;
-    P_new[166] = t434;
-    P_new[167] = t435;
-    P_new[168] = t296;
-    P_new[169] = t319;
-    P_new[170] = t341;
-    P_new[171] = t362;
-    P_new[172] = t382;
     P_new[173] = t401;
     P_new[174] = t419;
     P_new[175] = t436;
-    P_new[176] = t437;
-    P_new[177] = t438;
-    P_new[178] = t439;
-    P_new[179] = t440;
-    P_new[180] = t441;
-    P_new[181] = t442;
-    P_new[182] = t443;
-    P_new[183] = t444;
-    P_new[184] = t445;
-    P_new[185] = t446;
-    P_new[186] = t447;
-    P_new[187] = t448;
-    P_new[188] = t449;
-    P_new[189] = t450;
-    P_new[190] = t451;
-    P_new[191] = t452;
-    P_new[192] = t297;
-    P_new[193] = t320;
-    P_new[194] = t342;
-    P_new[195] = t363;
-    P_new[196] = t383;
-    P_new[197] = t402;
-    P_new[198] = t420;
-    P_new[199] = t437;
-    P_new[200] = t453;
-    P_new[201] = t454;
-    P_new[202] = t455;
-    P_new[203] = t456;
-    P_new[204] = t457;
-    P_new[205] = t458;
-    P_new[206] = t459;
-    P_new[207] = t460;
-    P_new[208] = t461;
-    P_new[209] = t462;
-    P_new[210] = t463;
-    P_new[211] = t464;
-    P_new[212] = t465;
-    P_new[213] = t466;
-    P_new[214] = t467;
-    P_new[215] = t468;
-    P_new[216] = t298;
-    P_new[217] = t321;
-    P_new[218] = t343;
-    P_new[219] = t364;
-    P_new[220] = t384;
-    P_new[221] = t403;
-    P_new[222] = t421;
-    P_new[223] = t438;
-    P_new[224] = t454;
     P_new[225] = t469;
     P_new[226] = t470;
     P_new[227] = t471;
-    P_new[228] = t472;
-    P_new[229] = t473;
-    P_new[230] = t474;
-    P_new[231] = t475;
-    P_new[232] = t476;
-    P_new[233] = t477;
-    P_new[234] = t478;
-    P_new[235] = t479;
-    P_new[236] = t480;
-    P_new[237] = t481;
-    P_new[238] = t482;
-    P_new[239] = t483;
-    P_new[240] = t299;
-    P_new[241] = t322;
-    P_new[242] = t344;
-    P_new[243] = t365;
-    P_new[244] = t385;
-    P_new[245] = t404;
-    P_new[246] = t422;
-    P_new[247] = t439;
-    P_new[248] = t455;
     P_new[249] = t470;
     P_new[250] = t484;
     P_new[251] = t485;
-    P_new[252] = t486;
-    P_new[253] = t487;
-    P_new[254] = t488;
-    P_new[255] = t489;
-    P_new[256] = t490;
-    P_new[257] = t491;
-    P_new[258] = t492;
-    P_new[259] = t493;
-    P_new[260] = t494;
-    P_new[261] = t495;
-    P_new[262] = t496;
-    P_new[263] = t497;
-    P_new[264] = t300;
-    P_new[265] = t323;
-    P_new[266] = t345;
-    P_new[267] = t366;
-    P_new[268] = t386;
-    P_new[269] = t405;
-    P_new[270] = t423;
-    P_new[271] = t440;
-    P_new[272] = t456;
     P_new[273] = t471;
     P_new[274] = t485;
     P_new[275] = t498;
-    P_new[276] = t499;
-    P_new[277] = t500;
-    P_new[278] = t501;
-    P_new[279] = t502;
-    P_new[280] = t503;
-    P_new[281] = t504;
-    P_new[282] = t505;
-    P_new[283] = t506;
-    P_new[284] = t507;
-    P_new[285] = t508;
-    P_new[286] = t509;
-    P_new[287] = t510;
-    P_new[288] = t301;
-    P_new[289] = t324;
-    P_new[290] = t346;
-    P_new[291] = t367;
-    P_new[292] = t387;
-    P_new[293] = t406;
-    P_new[294] = t424;
-    P_new[295] = t441;
-    P_new[296] = t457;
-    P_new[297] = t472;
-    P_new[298] = t486;
-    P_new[299] = t499;
-    P_new[300] = t511;
-    P_new[301] = t512;
-    P_new[302] = t513;
-    P_new[303] = t514;
-    P_new[304] = t515;
-    P_new[305] = t516;
-    P_new[306] = t517;
-    P_new[307] = t518;
-    P_new[308] = t519;
-    P_new[309] = t520;
-    P_new[310] = t521;
-    P_new[311] = t522;
-    P_new[312] = t302;
-    P_new[313] = t325;
-    P_new[314] = t347;
-    P_new[315] = t368;
-    P_new[316] = t388;
-    P_new[317] = t407;
-    P_new[318] = t425;
-    P_new[319] = t442;
-    P_new[320] = t458;
-    P_new[321] = t473;
-    P_new[322] = t487;
-    P_new[323] = t500;
-    P_new[324] = t512;
     P_new[325] = t523;
     P_new[326] = t524;
     P_new[327] = t525;
-    P_new[328] = t526;
-    P_new[329] = t527;
-    P_new[330] = t528;
-    P_new[331] = t529;
-    P_new[332] = t530;
-    P_new[333] = t531;
-    P_new[334] = t532;
-    P_new[335] = t533;
-    P_new[336] = t303;
-    P_new[337] = t326;
-    P_new[338] = t348;
-    P_new[339] = t369;
-    P_new[340] = t389;
-    P_new[341] = t408;
-    P_new[342] = t426;
-    P_new[343] = t443;
-    P_new[344] = t459;
-    P_new[345] = t474;
-    P_new[346] = t488;
-    P_new[347] = t501;
-    P_new[348] = t513;
     P_new[349] = t524;
     P_new[350] = t534;
     P_new[351] = t535;
-    P_new[352] = t536;
-    P_new[353] = t537;
-    P_new[354] = t538;
-    P_new[355] = t539;
-    P_new[356] = t540;
-    P_new[357] = t541;
-    P_new[358] = t542;
-    P_new[359] = t543;
-    P_new[360] = t304;
-    P_new[361] = t327;
-    P_new[362] = t349;
-    P_new[363] = t370;
-    P_new[364] = t390;
-    P_new[365] = t409;
-    P_new[366] = t427;
-    P_new[367] = t444;
-    P_new[368] = t460;
-    P_new[369] = t475;
-    P_new[370] = t489;
-    P_new[371] = t502;
-    P_new[372] = t514;
     P_new[373] = t525;
     P_new[374] = t535;
     P_new[375] = t544;
-    P_new[376] = t545;
-    P_new[377] = t546;
-    P_new[378] = t547;
-    P_new[379] = t548;
-    P_new[380] = t549;
-    P_new[381] = t550;
-    P_new[382] = t551;
-    P_new[383] = t552;
-    P_new[384] = t305;
-    P_new[385] = t328;
-    P_new[386] = t350;
-    P_new[387] = t371;
-    P_new[388] = t391;
-    P_new[389] = t410;
-    P_new[390] = t428;
-    P_new[391] = t445;
-    P_new[392] = t461;
-    P_new[393] = t476;
-    P_new[394] = t490;
-    P_new[395] = t503;
-    P_new[396] = t515;
-    P_new[397] = t526;
-    P_new[398] = t536;
-    P_new[399] = t545;
-    P_new[400] = t553;
-    P_new[401] = t554;
-    P_new[402] = t555;
-    P_new[403] = t556;
-    P_new[404] = t557;
-    P_new[405] = t558;
-    P_new[406] = t559;
-    P_new[407] = t560;
-    P_new[408] = t306;
-    P_new[409] = t329;
-    P_new[410] = t351;
-    P_new[411] = t372;
-    P_new[412] = t392;
-    P_new[413] = t411;
-    P_new[414] = t429;
-    P_new[415] = t446;
-    P_new[416] = t462;
-    P_new[417] = t477;
-    P_new[418] = t491;
-    P_new[419] = t504;
-    P_new[420] = t516;
-    P_new[421] = t527;
-    P_new[422] = t537;
-    P_new[423] = t546;
-    P_new[424] = t554;
     P_new[425] = t561;
     P_new[426] = t562;
     P_new[427] = t563;
-    P_new[428] = t564;
-    P_new[429] = t565;
-    P_new[430] = t566;
-    P_new[431] = t567;
-    P_new[432] = t307;
-    P_new[433] = t330;
-    P_new[434] = t352;
-    P_new[435] = t373;
-    P_new[436] = t393;
-    P_new[437] = t412;
-    P_new[438] = t430;
-    P_new[439] = t447;
-    P_new[440] = t463;
-    P_new[441] = t478;
-    P_new[442] = t492;
-    P_new[443] = t505;
-    P_new[444] = t517;
-    P_new[445] = t528;
-    P_new[446] = t538;
-    P_new[447] = t547;
-    P_new[448] = t555;
     P_new[449] = t562;
     P_new[450] = t568;
     P_new[451] = t569;
-    P_new[452] = t570;
-    P_new[453] = t571;
-    P_new[454] = t572;
-    P_new[455] = t573;
-    P_new[456] = t308;
-    P_new[457] = t331;
-    P_new[458] = t353;
-    P_new[459] = t374;
-    P_new[460] = t394;
-    P_new[461] = t413;
-    P_new[462] = t431;
-    P_new[463] = t448;
-    P_new[464] = t464;
-    P_new[465] = t479;
-    P_new[466] = t493;
-    P_new[467] = t506;
-    P_new[468] = t518;
-    P_new[469] = t529;
-    P_new[470] = t539;
-    P_new[471] = t548;
-    P_new[472] = t556;
     P_new[473] = t563;
     P_new[474] = t569;
     P_new[475] = t574;
-    P_new[476] = t575;
-    P_new[477] = t576;
-    P_new[478] = t577;
-    P_new[479] = t578;
-    P_new[480] = t309;
-    P_new[481] = t332;
-    P_new[482] = t354;
-    P_new[483] = t375;
-    P_new[484] = t395;
-    P_new[485] = t414;
-    P_new[486] = t432;
-    P_new[487] = t449;
-    P_new[488] = t465;
-    P_new[489] = t480;
-    P_new[490] = t494;
-    P_new[491] = t507;
-    P_new[492] = t519;
-    P_new[493] = t530;
-    P_new[494] = t540;
-    P_new[495] = t549;
-    P_new[496] = t557;
-    P_new[497] = t564;
-    P_new[498] = t570;
-    P_new[499] = t575;
-    P_new[500] = t579;
-    P_new[501] = t580;
-    P_new[502] = t581;
-    P_new[503] = t582;
-    P_new[504] = t310;
-    P_new[505] = t333;
-    P_new[506] = t355;
-    P_new[507] = t376;
-    P_new[508] = t396;
-    P_new[509] = t415;
-    P_new[510] = t433;
-    P_new[511] = t450;
-    P_new[512] = t466;
-    P_new[513] = t481;
-    P_new[514] = t495;
-    P_new[515] = t508;
-    P_new[516] = t520;
-    P_new[517] = t531;
-    P_new[518] = t541;
-    P_new[519] = t550;
-    P_new[520] = t558;
-    P_new[521] = t565;
-    P_new[522] = t571;
-    P_new[523] = t576;
-    P_new[524] = t580;
     P_new[525] = t583;
     P_new[526] = t584;
     P_new[527] = t585;
-    P_new[528] = t311;
-    P_new[529] = t334;
-    P_new[530] = t356;
-    P_new[531] = t377;
-    P_new[532] = t397;
-    P_new[533] = t416;
-    P_new[534] = t434;
-    P_new[535] = t451;
-    P_new[536] = t467;
-    P_new[537] = t482;
-    P_new[538] = t496;
-    P_new[539] = t509;
-    P_new[540] = t521;
-    P_new[541] = t532;
-    P_new[542] = t542;
-    P_new[543] = t551;
-    P_new[544] = t559;
-    P_new[545] = t566;
-    P_new[546] = t572;
-    P_new[547] = t577;
-    P_new[548] = t581;
     P_new[549] = t584;
     P_new[550] = t586;
     P_new[551] = t587;
-    P_new[552] = t312;
-    P_new[553] = t335;
-    P_new[554] = t357;
-    P_new[555] = t378;
-    P_new[556] = t398;
-    P_new[557] = t417;
-    P_new[558] = t435;
-    P_new[559] = t452;
-    P_new[560] = t468;
-    P_new[561] = t483;
-    P_new[562] = t497;
-    P_new[563] = t510;
-    P_new[564] = t522;
-    P_new[565] = t533;
-    P_new[566] = t543;
-    P_new[567] = t552;
-    P_new[568] = t560;
-    P_new[569] = t567;
-    P_new[570] = t573;
-    P_new[571] = t578;
-    P_new[572] = t582;
     P_new[573] = t585;
     P_new[574] = t587;
     P_new[575] = t588;
@@ -9447,6 +9273,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t66 = DERIVE_FNMA(t36, t15, x[5]);
     const double t67 = DERIVE_FNMA(t36, t16, x[6]);
     const double t68 = DERIVE_FNMA(t36, t17, x[7]);
+    x_new[4] = t65;
+    x_new[5] = t66;
+    x_new[6] = t67;
+    x_new[7] = t68;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t69 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t18, ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -9456,6 +9286,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t70 = DERIVE_FNMA(t36, t19, x[9]);
     const double t71 = DERIVE_FNMA(t36, t20, x[10]);
     const double t72 = DERIVE_FNMA(t36, t21, x[11]);
+    x_new[8] = t69;
+    x_new[9] = t70;
+    x_new[10] = t71;
+    x_new[11] = t72;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t73 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t22, ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -9465,6 +9299,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t74 = DERIVE_FNMA(t36, t23, x[13]);
     const double t75 = DERIVE_FNMA(t36, t24, x[14]);
     const double t76 = DERIVE_FNMA(t36, t25, x[15]);
+    x_new[12] = t73;
+    x_new[13] = t74;
+    x_new[14] = t75;
+    x_new[15] = t76;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t77 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t26, ((derive_vd){x[16], x[17], x[18], x[19]}));
@@ -9474,6 +9312,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t78 = DERIVE_FNMA(t36, t27, x[17]);
     const double t79 = DERIVE_FNMA(t36, t28, x[18]);
     const double t80 = DERIVE_FNMA(t36, t29, x[19]);
+    x_new[16] = t77;
+    x_new[17] = t78;
+    x_new[18] = t79;
+    x_new[19] = t80;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t81 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t30, ((derive_vd){x[20], x[21], x[22], x[23]}));
@@ -9483,6 +9325,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t82 = DERIVE_FNMA(t36, t31, x[21]);
     const double t83 = DERIVE_FNMA(t36, t32, x[22]);
     const double t84 = DERIVE_FNMA(t36, t33, x[23]);
+    x_new[20] = t81;
+    x_new[21] = t82;
+    x_new[22] = t83;
+    x_new[23] = t84;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t85 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t10, ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -9495,6 +9341,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t86 = DERIVE_FMA(t37, t11, P[1]);
     const double t87 = DERIVE_FMA(t37, t12, P[2]);
     const double t88 = DERIVE_FMA(t37, t13, P[3]);
+    P_new[0] = t85;
+    P_new[1] = t86;
+    P_new[24] = t86;
+    P_new[2] = t87;
+    P_new[48] = t87;
+    P_new[3] = t88;
+    P_new[72] = t88;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t89 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t14, ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -9503,6 +9356,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t90 = DERIVE_FMA(t37, t15, P[5]);
     const double t91 = DERIVE_FMA(t37, t16, P[6]);
     const double t92 = DERIVE_FMA(t37, t17, P[7]);
+    P_new[4] = t89;
+    P_new[96] = t89;
+    P_new[5] = t90;
+    P_new[120] = t90;
+    P_new[6] = t91;
+    P_new[144] = t91;
+    P_new[7] = t92;
+    P_new[168] = t92;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t93 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t18, ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -9511,6 +9372,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t94 = DERIVE_FMA(t37, t19, P[9]);
     const double t95 = DERIVE_FMA(t37, t20, P[10]);
     const double t96 = DERIVE_FMA(t37, t21, P[11]);
+    P_new[8] = t93;
+    P_new[192] = t93;
+    P_new[9] = t94;
+    P_new[216] = t94;
+    P_new[10] = t95;
+    P_new[240] = t95;
+    P_new[11] = t96;
+    P_new[264] = t96;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t97 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t22, ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -9519,6 +9388,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t98 = DERIVE_FMA(t37, t23, P[13]);
     const double t99 = DERIVE_FMA(t37, t24, P[14]);
     const double t100 = DERIVE_FMA(t37, t25, P[15]);
+    P_new[12] = t97;
+    P_new[288] = t97;
+    P_new[13] = t98;
+    P_new[312] = t98;
+    P_new[14] = t99;
+    P_new[336] = t99;
+    P_new[15] = t100;
+    P_new[360] = t100;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t101 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t26, ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -9527,6 +9404,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t102 = DERIVE_FMA(t37, t27, P[17]);
     const double t103 = DERIVE_FMA(t37, t28, P[18]);
     const double t104 = DERIVE_FMA(t37, t29, P[19]);
+    P_new[16] = t101;
+    P_new[384] = t101;
+    P_new[17] = t102;
+    P_new[408] = t102;
+    P_new[18] = t103;
+    P_new[432] = t103;
+    P_new[19] = t104;
+    P_new[456] = t104;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t105 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t30, ((derive_vd){P[20], P[21], P[22], P[23]}));
@@ -9535,6 +9420,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t106 = DERIVE_FMA(t37, t31, P[21]);
     const double t107 = DERIVE_FMA(t37, t32, P[22]);
     const double t108 = DERIVE_FMA(t37, t33, P[23]);
+    P_new[20] = t105;
+    P_new[480] = t105;
+    P_new[21] = t106;
+    P_new[504] = t106;
+    P_new[22] = t107;
+    P_new[528] = t107;
+    P_new[23] = t108;
+    P_new[552] = t108;
     #endif
     const double t109 = DERIVE_FMA(t11, t38, P[25]);
     const double t110 = DERIVE_FMA(t12, t38, P[26]);
@@ -9546,6 +9439,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t113 = DERIVE_FMA(t38, t15, P[29]);
     const double t114 = DERIVE_FMA(t38, t16, P[30]);
     const double t115 = DERIVE_FMA(t38, t17, P[31]);
+    P_new[28] = t112;
+    P_new[97] = t112;
+    P_new[29] = t113;
+    P_new[121] = t113;
+    P_new[30] = t114;
+    P_new[145] = t114;
+    P_new[31] = t115;
+    P_new[169] = t115;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t116 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t18, ((derive_vd){P[32], P[33], P[34], P[35]}));
@@ -9554,6 +9455,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t117 = DERIVE_FMA(t38, t19, P[33]);
     const double t118 = DERIVE_FMA(t38, t20, P[34]);
     const double t119 = DERIVE_FMA(t38, t21, P[35]);
+    P_new[32] = t116;
+    P_new[193] = t116;
+    P_new[33] = t117;
+    P_new[217] = t117;
+    P_new[34] = t118;
+    P_new[241] = t118;
+    P_new[35] = t119;
+    P_new[265] = t119;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t120 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t22, ((derive_vd){P[36], P[37], P[38], P[39]}));
@@ -9562,6 +9471,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t121 = DERIVE_FMA(t38, t23, P[37]);
     const double t122 = DERIVE_FMA(t38, t24, P[38]);
     const double t123 = DERIVE_FMA(t38, t25, P[39]);
+    P_new[36] = t120;
+    P_new[289] = t120;
+    P_new[37] = t121;
+    P_new[313] = t121;
+    P_new[38] = t122;
+    P_new[337] = t122;
+    P_new[39] = t123;
+    P_new[361] = t123;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t124 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t26, ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -9570,6 +9487,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t125 = DERIVE_FMA(t38, t27, P[41]);
     const double t126 = DERIVE_FMA(t38, t28, P[42]);
     const double t127 = DERIVE_FMA(t38, t29, P[43]);
+    P_new[40] = t124;
+    P_new[385] = t124;
+    P_new[41] = t125;
+    P_new[409] = t125;
+    P_new[42] = t126;
+    P_new[433] = t126;
+    P_new[43] = t127;
+    P_new[457] = t127;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t128 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t30, ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -9578,6 +9503,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t129 = DERIVE_FMA(t38, t31, P[45]);
     const double t130 = DERIVE_FMA(t38, t32, P[46]);
     const double t131 = DERIVE_FMA(t38, t33, P[47]);
+    P_new[44] = t128;
+    P_new[481] = t128;
+    P_new[45] = t129;
+    P_new[505] = t129;
+    P_new[46] = t130;
+    P_new[529] = t130;
+    P_new[47] = t131;
+    P_new[553] = t131;
     #endif
     const double t132 = DERIVE_FMA(t12, t39, P[50]);
     const double t133 = DERIVE_FMA(t13, t39, P[51]);
@@ -9588,6 +9521,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t135 = DERIVE_FMA(t39, t15, P[53]);
     const double t136 = DERIVE_FMA(t39, t16, P[54]);
     const double t137 = DERIVE_FMA(t39, t17, P[55]);
+    P_new[52] = t134;
+    P_new[98] = t134;
+    P_new[53] = t135;
+    P_new[122] = t135;
+    P_new[54] = t136;
+    P_new[146] = t136;
+    P_new[55] = t137;
+    P_new[170] = t137;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t138 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t18, ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -9596,6 +9537,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t139 = DERIVE_FMA(t39, t19, P[57]);
     const double t140 = DERIVE_FMA(t39, t20, P[58]);
     const double t141 = DERIVE_FMA(t39, t21, P[59]);
+    P_new[56] = t138;
+    P_new[194] = t138;
+    P_new[57] = t139;
+    P_new[218] = t139;
+    P_new[58] = t140;
+    P_new[242] = t140;
+    P_new[59] = t141;
+    P_new[266] = t141;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t142 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t22, ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -9604,6 +9553,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t143 = DERIVE_FMA(t39, t23, P[61]);
     const double t144 = DERIVE_FMA(t39, t24, P[62]);
     const double t145 = DERIVE_FMA(t39, t25, P[63]);
+    P_new[60] = t142;
+    P_new[290] = t142;
+    P_new[61] = t143;
+    P_new[314] = t143;
+    P_new[62] = t144;
+    P_new[338] = t144;
+    P_new[63] = t145;
+    P_new[362] = t145;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t146 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t26, ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -9612,6 +9569,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t147 = DERIVE_FMA(t39, t27, P[65]);
     const double t148 = DERIVE_FMA(t39, t28, P[66]);
     const double t149 = DERIVE_FMA(t39, t29, P[67]);
+    P_new[64] = t146;
+    P_new[386] = t146;
+    P_new[65] = t147;
+    P_new[410] = t147;
+    P_new[66] = t148;
+    P_new[434] = t148;
+    P_new[67] = t149;
+    P_new[458] = t149;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t150 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t30, ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -9620,6 +9585,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t151 = DERIVE_FMA(t39, t31, P[69]);
     const double t152 = DERIVE_FMA(t39, t32, P[70]);
     const double t153 = DERIVE_FMA(t39, t33, P[71]);
+    P_new[68] = t150;
+    P_new[482] = t150;
+    P_new[69] = t151;
+    P_new[506] = t151;
+    P_new[70] = t152;
+    P_new[530] = t152;
+    P_new[71] = t153;
+    P_new[554] = t153;
     #endif
     const double t154 = DERIVE_FMA(t13, t40, P[75]);
     #if DERIVE_VECTOR
@@ -9645,6 +9618,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t156 = DERIVE_FMA(t40, t15, P[77]);
     const double t157 = DERIVE_FMA(t40, t16, P[78]);
     const double t158 = DERIVE_FMA(t40, t17, P[79]);
+    P_new[76] = t155;
+    P_new[99] = t155;
+    P_new[77] = t156;
+    P_new[123] = t156;
+    P_new[78] = t157;
+    P_new[147] = t157;
+    P_new[79] = t158;
+    P_new[171] = t158;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t18, ((derive_vd){P[80], P[81], P[82], P[83]}));
@@ -9669,6 +9650,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t160 = DERIVE_FMA(t40, t19, P[81]);
     const double t161 = DERIVE_FMA(t40, t20, P[82]);
     const double t162 = DERIVE_FMA(t40, t21, P[83]);
+    P_new[80] = t159;
+    P_new[195] = t159;
+    P_new[81] = t160;
+    P_new[219] = t160;
+    P_new[82] = t161;
+    P_new[243] = t161;
+    P_new[83] = t162;
+    P_new[267] = t162;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t22, ((derive_vd){P[84], P[85], P[86], P[87]}));
@@ -9693,6 +9682,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t164 = DERIVE_FMA(t40, t23, P[85]);
     const double t165 = DERIVE_FMA(t40, t24, P[86]);
     const double t166 = DERIVE_FMA(t40, t25, P[87]);
+    P_new[84] = t163;
+    P_new[291] = t163;
+    P_new[85] = t164;
+    P_new[315] = t164;
+    P_new[86] = t165;
+    P_new[339] = t165;
+    P_new[87] = t166;
+    P_new[363] = t166;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t26, ((derive_vd){P[88], P[89], P[90], P[91]}));
@@ -9717,6 +9714,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t168 = DERIVE_FMA(t40, t27, P[89]);
     const double t169 = DERIVE_FMA(t40, t28, P[90]);
     const double t170 = DERIVE_FMA(t40, t29, P[91]);
+    P_new[88] = t167;
+    P_new[387] = t167;
+    P_new[89] = t168;
+    P_new[411] = t168;
+    P_new[90] = t169;
+    P_new[435] = t169;
+    P_new[91] = t170;
+    P_new[459] = t170;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t30, ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -9741,6 +9746,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t172 = DERIVE_FMA(t40, t31, P[93]);
     const double t173 = DERIVE_FMA(t40, t32, P[94]);
     const double t174 = DERIVE_FMA(t40, t33, P[95]);
+    P_new[92] = t171;
+    P_new[483] = t171;
+    P_new[93] = t172;
+    P_new[507] = t172;
+    P_new[94] = t173;
+    P_new[531] = t173;
+    P_new[95] = t174;
+    P_new[555] = t174;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t14, ((derive_vd){P[100], P[101], P[102], P[103]}));
@@ -9753,6 +9766,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t176 = DERIVE_FMA(t41, t15, P[101]);
     const double t177 = DERIVE_FMA(t41, t16, P[102]);
     const double t178 = DERIVE_FMA(t41, t17, P[103]);
+    P_new[100] = t175;
+    P_new[101] = t176;
+    P_new[124] = t176;
+    P_new[102] = t177;
+    P_new[148] = t177;
+    P_new[103] = t178;
+    P_new[172] = t178;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t18, ((derive_vd){P[104], P[105], P[106], P[107]}));
@@ -9761,6 +9781,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t180 = DERIVE_FMA(t41, t19, P[105]);
     const double t181 = DERIVE_FMA(t41, t20, P[106]);
     const double t182 = DERIVE_FMA(t41, t21, P[107]);
+    P_new[104] = t179;
+    P_new[196] = t179;
+    P_new[105] = t180;
+    P_new[220] = t180;
+    P_new[106] = t181;
+    P_new[244] = t181;
+    P_new[107] = t182;
+    P_new[268] = t182;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t22, ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -9769,6 +9797,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t184 = DERIVE_FMA(t41, t23, P[109]);
     const double t185 = DERIVE_FMA(t41, t24, P[110]);
     const double t186 = DERIVE_FMA(t41, t25, P[111]);
+    P_new[108] = t183;
+    P_new[292] = t183;
+    P_new[109] = t184;
+    P_new[316] = t184;
+    P_new[110] = t185;
+    P_new[340] = t185;
+    P_new[111] = t186;
+    P_new[364] = t186;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t187 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t26, ((derive_vd){P[112], P[113], P[114], P[115]}));
@@ -9777,6 +9813,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t188 = DERIVE_FMA(t41, t27, P[113]);
     const double t189 = DERIVE_FMA(t41, t28, P[114]);
     const double t190 = DERIVE_FMA(t41, t29, P[115]);
+    P_new[112] = t187;
+    P_new[388] = t187;
+    P_new[113] = t188;
+    P_new[412] = t188;
+    P_new[114] = t189;
+    P_new[436] = t189;
+    P_new[115] = t190;
+    P_new[460] = t190;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t191 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t30, ((derive_vd){P[116], P[117], P[118], P[119]}));
@@ -9785,6 +9829,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t192 = DERIVE_FMA(t41, t31, P[117]);
     const double t193 = DERIVE_FMA(t41, t32, P[118]);
     const double t194 = DERIVE_FMA(t41, t33, P[119]);
+    P_new[116] = t191;
+    P_new[484] = t191;
+    P_new[117] = t192;
+    P_new[508] = t192;
+    P_new[118] = t193;
+    P_new[532] = t193;
+    P_new[119] = t194;
+    P_new[556] = t194;
     #endif
     const double t195 = DERIVE_FMA(t15, t42, P[125]);
     const double t196 = DERIVE_FMA(t16, t42, P[126]);
@@ -9796,6 +9848,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t199 = DERIVE_FMA(t42, t19, P[129]);
     const double t200 = DERIVE_FMA(t42, t20, P[130]);
     const double t201 = DERIVE_FMA(t42, t21, P[131]);
+    P_new[128] = t198;
+    P_new[197] = t198;
+    P_new[129] = t199;
+    P_new[221] = t199;
+    P_new[130] = t200;
+    P_new[245] = t200;
+    P_new[131] = t201;
+    P_new[269] = t201;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t202 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t22, ((derive_vd){P[132], P[133], P[134], P[135]}));
@@ -9804,6 +9864,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t203 = DERIVE_FMA(t42, t23, P[133]);
     const double t204 = DERIVE_FMA(t42, t24, P[134]);
     const double t205 = DERIVE_FMA(t42, t25, P[135]);
+    P_new[132] = t202;
+    P_new[293] = t202;
+    P_new[133] = t203;
+    P_new[317] = t203;
+    P_new[134] = t204;
+    P_new[341] = t204;
+    P_new[135] = t205;
+    P_new[365] = t205;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t206 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t26, ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -9812,6 +9880,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t207 = DERIVE_FMA(t42, t27, P[137]);
     const double t208 = DERIVE_FMA(t42, t28, P[138]);
     const double t209 = DERIVE_FMA(t42, t29, P[139]);
+    P_new[136] = t206;
+    P_new[389] = t206;
+    P_new[137] = t207;
+    P_new[413] = t207;
+    P_new[138] = t208;
+    P_new[437] = t208;
+    P_new[139] = t209;
+    P_new[461] = t209;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t210 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t30, ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -9820,6 +9896,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t211 = DERIVE_FMA(t42, t31, P[141]);
     const double t212 = DERIVE_FMA(t42, t32, P[142]);
     const double t213 = DERIVE_FMA(t42, t33, P[143]);
+    P_new[140] = t210;
+    P_new[485] = t210;
+    P_new[141] = t211;
+    P_new[509] = t211;
+    P_new[142] = t212;
+    P_new[533] = t212;
+    P_new[143] = t213;
+    P_new[557] = t213;
     #endif
     const double t214 = DERIVE_FMA(t16, t43, P[150]);
     const double t215 = DERIVE_FMA(t17, t43, P[151]);
@@ -9830,6 +9914,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t217 = DERIVE_FMA(t43, t19, P[153]);
     const double t218 = DERIVE_FMA(t43, t20, P[154]);
     const double t219 = DERIVE_FMA(t43, t21, P[155]);
+    P_new[152] = t216;
+    P_new[198] = t216;
+    P_new[153] = t217;
+    P_new[222] = t217;
+    P_new[154] = t218;
+    P_new[246] = t218;
+    P_new[155] = t219;
+    P_new[270] = t219;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t22, ((derive_vd){P[156], P[157], P[158], P[159]}));
@@ -9838,6 +9930,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t221 = DERIVE_FMA(t43, t23, P[157]);
     const double t222 = DERIVE_FMA(t43, t24, P[158]);
     const double t223 = DERIVE_FMA(t43, t25, P[159]);
+    P_new[156] = t220;
+    P_new[294] = t220;
+    P_new[157] = t221;
+    P_new[318] = t221;
+    P_new[158] = t222;
+    P_new[342] = t222;
+    P_new[159] = t223;
+    P_new[366] = t223;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t224 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t26, ((derive_vd){P[160], P[161], P[162], P[163]}));
@@ -9846,6 +9946,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t225 = DERIVE_FMA(t43, t27, P[161]);
     const double t226 = DERIVE_FMA(t43, t28, P[162]);
     const double t227 = DERIVE_FMA(t43, t29, P[163]);
+    P_new[160] = t224;
+    P_new[390] = t224;
+    P_new[161] = t225;
+    P_new[414] = t225;
+    P_new[162] = t226;
+    P_new[438] = t226;
+    P_new[163] = t227;
+    P_new[462] = t227;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t228 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t30, ((derive_vd){P[164], P[165], P[166], P[167]}));
@@ -9854,6 +9962,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t229 = DERIVE_FMA(t43, t31, P[165]);
     const double t230 = DERIVE_FMA(t43, t32, P[166]);
     const double t231 = DERIVE_FMA(t43, t33, P[167]);
+    P_new[164] = t228;
+    P_new[486] = t228;
+    P_new[165] = t229;
+    P_new[510] = t229;
+    P_new[166] = t230;
+    P_new[534] = t230;
+    P_new[167] = t231;
+    P_new[558] = t231;
     #endif
     const double t232 = DERIVE_FMA(t17, t44, P[175]);
     #if DERIVE_VECTOR
@@ -9879,6 +9995,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t234 = DERIVE_FMA(t44, t19, P[177]);
     const double t235 = DERIVE_FMA(t44, t20, P[178]);
     const double t236 = DERIVE_FMA(t44, t21, P[179]);
+    P_new[176] = t233;
+    P_new[199] = t233;
+    P_new[177] = t234;
+    P_new[223] = t234;
+    P_new[178] = t235;
+    P_new[247] = t235;
+    P_new[179] = t236;
+    P_new[271] = t236;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t22, ((derive_vd){P[180], P[181], P[182], P[183]}));
@@ -9903,6 +10027,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t238 = DERIVE_FMA(t44, t23, P[181]);
     const double t239 = DERIVE_FMA(t44, t24, P[182]);
     const double t240 = DERIVE_FMA(t44, t25, P[183]);
+    P_new[180] = t237;
+    P_new[295] = t237;
+    P_new[181] = t238;
+    P_new[319] = t238;
+    P_new[182] = t239;
+    P_new[343] = t239;
+    P_new[183] = t240;
+    P_new[367] = t240;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t26, ((derive_vd){P[184], P[185], P[186], P[187]}));
@@ -9927,6 +10059,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t242 = DERIVE_FMA(t44, t27, P[185]);
     const double t243 = DERIVE_FMA(t44, t28, P[186]);
     const double t244 = DERIVE_FMA(t44, t29, P[187]);
+    P_new[184] = t241;
+    P_new[391] = t241;
+    P_new[185] = t242;
+    P_new[415] = t242;
+    P_new[186] = t243;
+    P_new[439] = t243;
+    P_new[187] = t244;
+    P_new[463] = t244;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t30, ((derive_vd){P[188], P[189], P[190], P[191]}));
@@ -9951,6 +10091,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t246 = DERIVE_FMA(t44, t31, P[189]);
     const double t247 = DERIVE_FMA(t44, t32, P[190]);
     const double t248 = DERIVE_FMA(t44, t33, P[191]);
+    P_new[188] = t245;
+    P_new[487] = t245;
+    P_new[189] = t246;
+    P_new[511] = t246;
+    P_new[190] = t247;
+    P_new[535] = t247;
+    P_new[191] = t248;
+    P_new[559] = t248;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t18, ((derive_vd){P[200], P[201], P[202], P[203]}));
@@ -9963,6 +10111,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t250 = DERIVE_FMA(t45, t19, P[201]);
     const double t251 = DERIVE_FMA(t45, t20, P[202]);
     const double t252 = DERIVE_FMA(t45, t21, P[203]);
+    P_new[200] = t249;
+    P_new[201] = t250;
+    P_new[224] = t250;
+    P_new[202] = t251;
+    P_new[248] = t251;
+    P_new[203] = t252;
+    P_new[272] = t252;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t22, ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -9971,6 +10126,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t254 = DERIVE_FMA(t45, t23, P[205]);
     const double t255 = DERIVE_FMA(t45, t24, P[206]);
     const double t256 = DERIVE_FMA(t45, t25, P[207]);
+    P_new[204] = t253;
+    P_new[296] = t253;
+    P_new[205] = t254;
+    P_new[320] = t254;
+    P_new[206] = t255;
+    P_new[344] = t255;
+    P_new[207] = t256;
+    P_new[368] = t256;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t257 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t26, ((derive_vd){P[208], P[209], P[210], P[211]}));
@@ -9979,6 +10142,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t258 = DERIVE_FMA(t45, t27, P[209]);
     const double t259 = DERIVE_FMA(t45, t28, P[210]);
     const double t260 = DERIVE_FMA(t45, t29, P[211]);
+    P_new[208] = t257;
+    P_new[392] = t257;
+    P_new[209] = t258;
+    P_new[416] = t258;
+    P_new[210] = t259;
+    P_new[440] = t259;
+    P_new[211] = t260;
+    P_new[464] = t260;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t261 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t30, ((derive_vd){P[212], P[213], P[214], P[215]}));
@@ -9987,6 +10158,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t262 = DERIVE_FMA(t45, t31, P[213]);
     const double t263 = DERIVE_FMA(t45, t32, P[214]);
     const double t264 = DERIVE_FMA(t45, t33, P[215]);
+    P_new[212] = t261;
+    P_new[488] = t261;
+    P_new[213] = t262;
+    P_new[512] = t262;
+    P_new[214] = t263;
+    P_new[536] = t263;
+    P_new[215] = t264;
+    P_new[560] = t264;
     #endif
     const double t265 = DERIVE_FMA(t19, t46, P[225]);
     const double t266 = DERIVE_FMA(t20, t46, P[226]);
@@ -9998,6 +10177,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t269 = DERIVE_FMA(t46, t23, P[229]);
     const double t270 = DERIVE_FMA(t46, t24, P[230]);
     const double t271 = DERIVE_FMA(t46, t25, P[231]);
+    P_new[228] = t268;
+    P_new[297] = t268;
+    P_new[229] = t269;
+    P_new[321] = t269;
+    P_new[230] = t270;
+    P_new[345] = t270;
+    P_new[231] = t271;
+    P_new[369] = t271;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t272 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t26, ((derive_vd){P[232], P[233], P[234], P[235]}));
@@ -10006,6 +10193,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t273 = DERIVE_FMA(t46, t27, P[233]);
     const double t274 = DERIVE_FMA(t46, t28, P[234]);
     const double t275 = DERIVE_FMA(t46, t29, P[235]);
+    P_new[232] = t272;
+    P_new[393] = t272;
+    P_new[233] = t273;
+    P_new[417] = t273;
+    P_new[234] = t274;
+    P_new[441] = t274;
+    P_new[235] = t275;
+    P_new[465] = t275;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t276 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t30, ((derive_vd){P[236], P[237], P[238], P[239]}));
@@ -10014,6 +10209,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t277 = DERIVE_FMA(t46, t31, P[237]);
     const double t278 = DERIVE_FMA(t46, t32, P[238]);
     const double t279 = DERIVE_FMA(t46, t33, P[239]);
+    P_new[236] = t276;
+    P_new[489] = t276;
+    P_new[237] = t277;
+    P_new[513] = t277;
+    P_new[238] = t278;
+    P_new[537] = t278;
+    P_new[239] = t279;
+    P_new[561] = t279;
     #endif
     const double t280 = DERIVE_FMA(t20, t47, P[250]);
     const double t281 = DERIVE_FMA(t21, t47, P[251]);
@@ -10024,6 +10227,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t283 = DERIVE_FMA(t47, t23, P[253]);
     const double t284 = DERIVE_FMA(t47, t24, P[254]);
     const double t285 = DERIVE_FMA(t47, t25, P[255]);
+    P_new[252] = t282;
+    P_new[298] = t282;
+    P_new[253] = t283;
+    P_new[322] = t283;
+    P_new[254] = t284;
+    P_new[346] = t284;
+    P_new[255] = t285;
+    P_new[370] = t285;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t286 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t26, ((derive_vd){P[256], P[257], P[258], P[259]}));
@@ -10032,6 +10243,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t287 = DERIVE_FMA(t47, t27, P[257]);
     const double t288 = DERIVE_FMA(t47, t28, P[258]);
     const double t289 = DERIVE_FMA(t47, t29, P[259]);
+    P_new[256] = t286;
+    P_new[394] = t286;
+    P_new[257] = t287;
+    P_new[418] = t287;
+    P_new[258] = t288;
+    P_new[442] = t288;
+    P_new[259] = t289;
+    P_new[466] = t289;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t290 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t30, ((derive_vd){P[260], P[261], P[262], P[263]}));
@@ -10040,6 +10259,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t291 = DERIVE_FMA(t47, t31, P[261]);
     const double t292 = DERIVE_FMA(t47, t32, P[262]);
     const double t293 = DERIVE_FMA(t47, t33, P[263]);
+    P_new[260] = t290;
+    P_new[490] = t290;
+    P_new[261] = t291;
+    P_new[514] = t291;
+    P_new[262] = t292;
+    P_new[538] = t292;
+    P_new[263] = t293;
+    P_new[562] = t293;
     #endif
     const double t294 = DERIVE_FMA(t21, t48, P[275]);
     #if DERIVE_VECTOR
@@ -10065,6 +10292,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t296 = DERIVE_FMA(t48, t23, P[277]);
     const double t297 = DERIVE_FMA(t48, t24, P[278]);
     const double t298 = DERIVE_FMA(t48, t25, P[279]);
+    P_new[276] = t295;
+    P_new[299] = t295;
+    P_new[277] = t296;
+    P_new[323] = t296;
+    P_new[278] = t297;
+    P_new[347] = t297;
+    P_new[279] = t298;
+    P_new[371] = t298;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t26, ((derive_vd){P[280], P[281], P[282], P[283]}));
@@ -10089,6 +10324,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t300 = DERIVE_FMA(t48, t27, P[281]);
     const double t301 = DERIVE_FMA(t48, t28, P[282]);
     const double t302 = DERIVE_FMA(t48, t29, P[283]);
+    P_new[280] = t299;
+    P_new[395] = t299;
+    P_new[281] = t300;
+    P_new[419] = t300;
+    P_new[282] = t301;
+    P_new[443] = t301;
+    P_new[283] = t302;
+    P_new[467] = t302;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t30, ((derive_vd){P[284], P[285], P[286], P[287]}));
@@ -10113,6 +10356,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t304 = DERIVE_FMA(t48, t31, P[285]);
     const double t305 = DERIVE_FMA(t48, t32, P[286]);
     const double t306 = DERIVE_FMA(t48, t33, P[287]);
+    P_new[284] = t303;
+    P_new[491] = t303;
+    P_new[285] = t304;
+    P_new[515] = t304;
+    P_new[286] = t305;
+    P_new[539] = t305;
+    P_new[287] = t306;
+    P_new[563] = t306;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t22, ((derive_vd){P[300], P[301], P[302], P[303]}));
@@ -10125,6 +10376,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t308 = DERIVE_FMA(t49, t23, P[301]);
     const double t309 = DERIVE_FMA(t49, t24, P[302]);
     const double t310 = DERIVE_FMA(t49, t25, P[303]);
+    P_new[300] = t307;
+    P_new[301] = t308;
+    P_new[324] = t308;
+    P_new[302] = t309;
+    P_new[348] = t309;
+    P_new[303] = t310;
+    P_new[372] = t310;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t26, ((derive_vd){P[304], P[305], P[306], P[307]}));
@@ -10133,6 +10391,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t312 = DERIVE_FMA(t49, t27, P[305]);
     const double t313 = DERIVE_FMA(t49, t28, P[306]);
     const double t314 = DERIVE_FMA(t49, t29, P[307]);
+    P_new[304] = t311;
+    P_new[396] = t311;
+    P_new[305] = t312;
+    P_new[420] = t312;
+    P_new[306] = t313;
+    P_new[444] = t313;
+    P_new[307] = t314;
+    P_new[468] = t314;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t30, ((derive_vd){P[308], P[309], P[310], P[311]}));
@@ -10141,6 +10407,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t316 = DERIVE_FMA(t49, t31, P[309]);
     const double t317 = DERIVE_FMA(t49, t32, P[310]);
     const double t318 = DERIVE_FMA(t49, t33, P[311]);
+    P_new[308] = t315;
+    P_new[492] = t315;
+    P_new[309] = t316;
+    P_new[516] = t316;
+    P_new[310] = t317;
+    P_new[540] = t317;
+    P_new[311] = t318;
+    P_new[564] = t318;
     #endif
     const double t319 = DERIVE_FMA(t23, t50, P[325]);
     const double t320 = DERIVE_FMA(t24, t50, P[326]);
@@ -10152,6 +10426,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t323 = DERIVE_FMA(t50, t27, P[329]);
     const double t324 = DERIVE_FMA(t50, t28, P[330]);
     const double t325 = DERIVE_FMA(t50, t29, P[331]);
+    P_new[328] = t322;
+    P_new[397] = t322;
+    P_new[329] = t323;
+    P_new[421] = t323;
+    P_new[330] = t324;
+    P_new[445] = t324;
+    P_new[331] = t325;
+    P_new[469] = t325;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t326 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), v_t30, ((derive_vd){P[332], P[333], P[334], P[335]}));
@@ -10160,6 +10442,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t327 = DERIVE_FMA(t50, t31, P[333]);
     const double t328 = DERIVE_FMA(t50, t32, P[334]);
     const double t329 = DERIVE_FMA(t50, t33, P[335]);
+    P_new[332] = t326;
+    P_new[493] = t326;
+    P_new[333] = t327;
+    P_new[517] = t327;
+    P_new[334] = t328;
+    P_new[541] = t328;
+    P_new[335] = t329;
+    P_new[565] = t329;
     #endif
     const double t330 = DERIVE_FMA(t24, t51, P[350]);
     const double t331 = DERIVE_FMA(t25, t51, P[351]);
@@ -10170,6 +10460,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t333 = DERIVE_FMA(t51, t27, P[353]);
     const double t334 = DERIVE_FMA(t51, t28, P[354]);
     const double t335 = DERIVE_FMA(t51, t29, P[355]);
+    P_new[352] = t332;
+    P_new[398] = t332;
+    P_new[353] = t333;
+    P_new[422] = t333;
+    P_new[354] = t334;
+    P_new[446] = t334;
+    P_new[355] = t335;
+    P_new[470] = t335;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t336 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), v_t30, ((derive_vd){P[356], P[357], P[358], P[359]}));
@@ -10178,6 +10476,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t337 = DERIVE_FMA(t51, t31, P[357]);
     const double t338 = DERIVE_FMA(t51, t32, P[358]);
     const double t339 = DERIVE_FMA(t51, t33, P[359]);
+    P_new[356] = t336;
+    P_new[494] = t336;
+    P_new[357] = t337;
+    P_new[518] = t337;
+    P_new[358] = t338;
+    P_new[542] = t338;
+    P_new[359] = t339;
+    P_new[566] = t339;
     #endif
     const double t340 = DERIVE_FMA(t25, t52, P[375]);
     #if DERIVE_VECTOR
@@ -10203,6 +10509,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t342 = DERIVE_FMA(t52, t27, P[377]);
     const double t343 = DERIVE_FMA(t52, t28, P[378]);
     const double t344 = DERIVE_FMA(t52, t29, P[379]);
+    P_new[376] = t341;
+    P_new[399] = t341;
+    P_new[377] = t342;
+    P_new[423] = t342;
+    P_new[378] = t343;
+    P_new[447] = t343;
+    P_new[379] = t344;
+    P_new[471] = t344;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t30, ((derive_vd){P[380], P[381], P[382], P[383]}));
@@ -10227,6 +10541,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t346 = DERIVE_FMA(t52, t31, P[381]);
     const double t347 = DERIVE_FMA(t52, t32, P[382]);
     const double t348 = DERIVE_FMA(t52, t33, P[383]);
+    P_new[380] = t345;
+    P_new[495] = t345;
+    P_new[381] = t346;
+    P_new[519] = t346;
+    P_new[382] = t347;
+    P_new[543] = t347;
+    P_new[383] = t348;
+    P_new[567] = t348;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t349 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t26, ((derive_vd){P[400], P[401], P[402], P[403]}));
@@ -10239,6 +10561,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t350 = DERIVE_FMA(t53, t27, P[401]);
     const double t351 = DERIVE_FMA(t53, t28, P[402]);
     const double t352 = DERIVE_FMA(t53, t29, P[403]);
+    P_new[400] = t349;
+    P_new[401] = t350;
+    P_new[424] = t350;
+    P_new[402] = t351;
+    P_new[448] = t351;
+    P_new[403] = t352;
+    P_new[472] = t352;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t353 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t30, ((derive_vd){P[404], P[405], P[406], P[407]}));
@@ -10247,6 +10576,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t354 = DERIVE_FMA(t53, t31, P[405]);
     const double t355 = DERIVE_FMA(t53, t32, P[406]);
     const double t356 = DERIVE_FMA(t53, t33, P[407]);
+    P_new[404] = t353;
+    P_new[496] = t353;
+    P_new[405] = t354;
+    P_new[520] = t354;
+    P_new[406] = t355;
+    P_new[544] = t355;
+    P_new[407] = t356;
+    P_new[568] = t356;
     #endif
     const double t357 = DERIVE_FMA(t27, t54, P[425]);
     const double t358 = DERIVE_FMA(t28, t54, P[426]);
@@ -10258,6 +10595,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t361 = DERIVE_FMA(t54, t31, P[429]);
     const double t362 = DERIVE_FMA(t54, t32, P[430]);
     const double t363 = DERIVE_FMA(t54, t33, P[431]);
+    P_new[428] = t360;
+    P_new[497] = t360;
+    P_new[429] = t361;
+    P_new[521] = t361;
+    P_new[430] = t362;
+    P_new[545] = t362;
+    P_new[431] = t363;
+    P_new[569] = t363;
     #endif
     const double t364 = DERIVE_FMA(t28, t55, P[450]);
     const double t365 = DERIVE_FMA(t29, t55, P[451]);
@@ -10268,6 +10613,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t367 = DERIVE_FMA(t55, t31, P[453]);
     const double t368 = DERIVE_FMA(t55, t32, P[454]);
     const double t369 = DERIVE_FMA(t55, t33, P[455]);
+    P_new[452] = t366;
+    P_new[498] = t366;
+    P_new[453] = t367;
+    P_new[522] = t367;
+    P_new[454] = t368;
+    P_new[546] = t368;
+    P_new[455] = t369;
+    P_new[570] = t369;
     #endif
     const double t370 = DERIVE_FMA(t29, t56, P[475]);
     #if DERIVE_VECTOR
@@ -10293,6 +10646,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t372 = DERIVE_FMA(t56, t31, P[477]);
     const double t373 = DERIVE_FMA(t56, t32, P[478]);
     const double t374 = DERIVE_FMA(t56, t33, P[479]);
+    P_new[476] = t371;
+    P_new[499] = t371;
+    P_new[477] = t372;
+    P_new[523] = t372;
+    P_new[478] = t373;
+    P_new[547] = t373;
+    P_new[479] = t374;
+    P_new[571] = t374;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t57, t57, t57, t57}), v_t30, ((derive_vd){P[500], P[501], P[502], P[503]}));
@@ -10305,6 +10666,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t376 = DERIVE_FMA(t57, t31, P[501]);
     const double t377 = DERIVE_FMA(t57, t32, P[502]);
     const double t378 = DERIVE_FMA(t57, t33, P[503]);
+    P_new[500] = t375;
+    P_new[501] = t376;
+    P_new[524] = t376;
+    P_new[502] = t377;
+    P_new[548] = t377;
+    P_new[503] = t378;
+    P_new[572] = t378;
     #endif
     const double t379 = DERIVE_FMA(t31, t58, P[525]);
     const double t380 = DERIVE_FMA(t32, t58, P[526]);
@@ -10400,599 +10768,57 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     x_new[1] = t388;
     x_new[2] = t389;
     x_new[3] = t390;
-    x_new[4] = t65;
-    x_new[5] = t66;
-    x_new[6] = t67;
-    x_new[7] = t68;
-    x_new[8] = t69;
-    x_new[9] = t70;
-    x_new[10] = t71;
-    x_new[11] = t72;
-    x_new[12] = t73;
-    x_new[13] = t74;
-    x_new[14] = t75;
-    x_new[15] = t76;
-    x_new[16] = t77;
-    x_new[17] = t78;
-    x_new[18] = t79;
-    x_new[19] = t80;
-    x_new[20] = t81;
-    x_new[21] = t82;
-    x_new[22] = t83;
-    x_new[23] = t84;
-    P_new[0] = t85;
-    P_new[1] = t86;
-    P_new[2] = t87;
-    P_new[3] = t88;
-    P_new[4] = t89;
-    P_new[5] = t90;
-    P_new[6] = t91;
-    P_new[7] = t92;
-    P_new[8] = t93;
-    P_new[9] = t94;
-    P_new[10] = t95;
-    P_new[11] = t96;
-    P_new[12] = t97;
-    P_new[13] = t98;
-    P_new[14] = t99;
-    P_new[15] = t100;
-    P_new[16] = t101;
-    P_new[17] = t102;
-    P_new[18] = t103;
-    P_new[19] = t104;
-    P_new[20] = t105;
-    P_new[21] = t106;
-    P_new[22] = t107;
-    P_new[23] = t108;
-    P_new[24] = t86;
     P_new[25] = t109;
     P_new[26] = t110;
     P_new[27] = t111;
-    P_new[28] = t112;
-    P_new[29] = t113;
-    P_new[30] = t114;
-    P_new[31] = t115;
-    P_new[32] = t116;
-    P_new[33] = t117;
-    P_new[34] = t118;
-    P_new[35] = t119;
-    P_new[36] = t120;
-    P_new[37] = t121;
-    P_new[38] = t122;
-    P_new[39] = t123;
-    P_new[40] = t124;
-    P_new[41] = t125;
-    P_new[42] = t126;
-    P_new[43] = t127;
-    P_new[44] = t128;
-    P_new[45] = t129;
-    P_new[46] = t130;
-    P_new[47] = t131;
-    P_new[48] = t87;
     P_new[49] = t110;
     P_new[50] = t132;
     P_new[51] = t133;
-    P_new[52] = t134;
-    P_new[53] = t135;
-    P_new[54] = t136;
-    P_new[55] = t137;
-    P_new[56] = t138;
-    P_new[57] = t139;
-    P_new[58] = t140;
-    P_new[59] = t141;
-    P_new[60] = t142;
-    P_new[61] = t143;
-    P_new[62] = t144;
-    P_new[63] = t145;
-    P_new[64] = t146;
-    P_new[65] = t147;
-    P_new[66] = t148;
-    P_new[67] = t149;
-    P_new[68] = t150;
-    P_new[69] = t151;
-    P_new[70] = t152;
-    P_new[71] = t153;
-    P_new[72] = t88;
     P_new[73] = t111;
     P_new[74] = t133;
     P_new[75] = t154;
-    P_new[76] = t155;
-    P_new[77] = t156;
-    P_new[78] = t157;
-    P_new[79] = t158;
-    P_new[80] = t159;
-    P_new[81] = t160;
-    P_new[82] = t161;
-    P_new[83] = t162;
-    P_new[84] = t163;
-    P_new[85] = t164;
-    P_new[86] = t165;
-    P_new[87] = t166;
-    P_new[88] = t167;
-    P_new[89] = t168;
-    P_new[90] = t169;
-    P_new[91] = t170;
-    P_new[92] = t171;
-    P_new[93] = t172;
-    P_new[94] = t173;
-    P_new[95] = t174;
-    P_new[96] = t89;
-    P_new[97] = t112;
-    P_new[98] = t134;
-    P_new[99] = t155;
-    P_new[100] = t175;
-    P_new[101] = t176;
-    P_new[102] = t177;
-    P_new[103] = t178;
-    P_new[104] = t179;
-    P_new[105] = t180;
-    P_new[106] = t181;
-    P_new[107] = t182;
-    P_new[108] = t183;
-    P_new[109] = t184;
-    P_new[110] = t185;
-    P_new[111] = t186;
-    P_new[112] = t187;
-    P_new[113] = t188;
-    P_new[114] = t189;
-    P_new[115] = t190;
-    P_new[116] = t191;
-    P_new[117] = t192;
-    P_new[118] = t193;
-    P_new[119] = t194;
-    P_new[120] = t90;
-    P_new[121] = t113;
-    P_new[122] = t135;
-    P_new[123] = t156;
-    P_new[124] = t176;
     P_new[125] = t195;
     P_new[126] = t196;
     P_new[127] = t197;
-    P_new[128] = t198;
-    P_new[129] = t199;
-    P_new[130] = t200;
-    P_new[131] = t201;
-    P_new[132] = t202;
-    P_new[133] = t203;
-    P_new[134] = t204;
-    P_new[135] = t205;
-    P_new[136] = t206;
-    P_new[137] = t207;
-    P_new[138] = t208;
-    P_new[139] = t209;
-    P_new[140] = t210;
-    P_new[141] = t211;
-    P_new[142] = t212;
-    P_new[143] = t213;
-    P_new[144] = t91;
-    P_new[145] = t114;
-    P_new[146] = t136;
-    P_new[147] = t157;
-    P_new[148] = t177;
     P_new[149] = t196;
     P_new[150] = t214;
     P_new[151] = t215;
-    P_new[152] = t216;
-    P_new[153] = t217;
-    P_new[154] = t218;
-    P_new[155] = t219;
-    P_new[156] = t220;
-    P_new[157] = t221;
-    P_new[158] = t222;
-    P_new[159] = t223;
-    P_new[160] = t224;
-    P_new[161] = t225;
-    P_new[162] = t226;
-    P_new[163] = t227;
-    P_new[164] = t228;
-    P_new[165] = t229;
-    P_new[166] = t230;
-    P_new[167] = t231;
-    P_new[168] = t92;
-    P_new[169] = t115;
-    P_new[170] = t137;
-    P_new[171] = t158;
-    P_new[172] = t178;
     P_new[173] = t197;
     P_new[174] = t215;
     P_new[175] = t232;
-    P_new[176] = t233;
-    P_new[177] = t234;
-    P_new[178] = t235;
-    P_new[179] = t236;
-    P_new[180] = t237;
-    P_new[181] = t238;
-    P_new[182] = t239;
-    P_new[183] = t240;
-    P_new[184] = t241;
-    P_new[185] = t242;
-    P_new[186] = t243;
-    P_new[187] = t244;
-    P_new[188] = t245;
-    P_new[189] = t246;
-    P_new[190] = t247;
-    P_new[191] = t248;
-    P_new[192] = t93;
-    P_new[193] = t116;
-    P_new[194] = t138;
-    P_new[195] = t159;
-    P_new[196] = t179;
-    P_new[197] = t198;
-    P_new[198] = t216;
-    P_new[199] = t233;
-    P_new[200] = t249;
-    P_new[201] = t250;
-    P_new[202] = t251;
-    P_new[203] = t252;
-    P_new[204] = t253;
-    P_new[205] = t254;
-    P_new[206] = t255;
-    P_new[207] = t256;
-    P_new[208] = t257;
-    P_new[209] = t258;
-    P_new[210] = t259;
-    P_new[211] = t260;
-    P_new[212] = t261;
-    P_new[213] = t262;
-    P_new[214] = t263;
-    P_new[215] = t264;
-    P_new[216] = t94;
-    P_new[217] = t117;
-    P_new[218] = t139;
-    P_new[219] = t160;
-    P_new[220] = t180;
-    P_new[221] = t199;
-    P_new[222] = t217;
-    P_new[223] = t234;
-    P_new[224] = t250;
     P_new[225] = t265;
     P_new[226] = t266;
     P_new[227] = t267;
-    P_new[228] = t268;
-    P_new[229] = t269;
-    P_new[230] = t270;
-    P_new[231] = t271;
-    P_new[232] = t272;
-    P_new[233] = t273;
-    P_new[234] = t274;
-    P_new[235] = t275;
-    P_new[236] = t276;
-    P_new[237] = t277;
-    P_new[238] = t278;
-    P_new[239] = t279;
-    P_new[240] = t95;
-    P_new[241] = t118;
-    P_new[242] = t140;
-    P_new[243] = t161;
-    P_new[244] = t181;
-    P_new[245] = t200;
-    P_new[246] = t218;
-    P_new[247] = t235;
-    P_new[248] = t251;
     P_new[249] = t266;
     P_new[250] = t280;
     P_new[251] = t281;
-    P_new[252] = t282;
-    P_new[253] = t283;
-    P_new[254] = t284;
-    P_new[255] = t285;
-    P_new[256] = t286;
-    P_new[257] = t287;
-    P_new[258] = t288;
-    P_new[259] = t289;
-    P_new[260] = t290;
-    P_new[261] = t291;
-    P_new[262] = t292;
-    P_new[263] = t293;
-    P_new[264] = t96;
-    P_new[265] = t119;
-    P_new[266] = t141;
-    P_new[267] = t162;
-    P_new[268] = t182;
-    P_new[269] = t201;
-    P_new[270] = t219;
-    P_new[271] = t236;
-    P_new[272] = t252;
     P_new[273] = t267;
     P_new[274] = t281;
     P_new[275] = t294;
-    P_new[276] = t295;
-    P_new[277] = t296;
-    P_new[278] = t297;
-    P_new[279] = t298;
-    P_new[280] = t299;
-    P_new[281] = t300;
-    P_new[282] = t301;
-    P_new[283] = t302;
-    P_new[284] = t303;
-    P_new[285] = t304;
-    P_new[286] = t305;
-    P_new[287] = t306;
-    P_new[288] = t97;
-    P_new[289] = t120;
-    P_new[290] = t142;
-    P_new[291] = t163;
-    P_new[292] = t183;
-    P_new[293] = t202;
-    P_new[294] = t220;
-    P_new[295] = t237;
-    P_new[296] = t253;
-    P_new[297] = t268;
-    P_new[298] = t282;
-    P_new[299] = t295;
-    P_new[300] = t307;
-    P_new[301] = t308;
-    P_new[302] = t309;
-    P_new[303] = t310;
-    P_new[304] = t311;
-    P_new[305] = t312;
-    P_new[306] = t313;
-    P_new[307] = t314;
-    P_new[308] = t315;
-    P_new[309] = t316;
-    P_new[310] = t317;
-    P_new[311] = t318;
-    P_new[312] = t98;
-    P_new[313] = t121;
-    P_new[314] = t143;
-    P_new[315] = t164;
-    P_new[316] = t184;
-    P_new[317] = t203;
-    P_new[318] = t221;
-    P_new[319] = t238;
-    P_new[320] = t254;
-    P_new[321] = t269;
-    P_new[322] = t283;
-    P_new[323] = t296;
-    P_new[324] = t308;
     P_new[325] = t319;
     P_new[326] = t320;
     P_new[327] = t321;
-    P_new[328] = t322;
-    P_new[329] = t323;
-    P_new[330] = t324;
-    P_new[331] = t325;
-    P_new[332] = t326;
-    P_new[333] = t327;
-    P_new[334] = t328;
-    P_new[335] = t329;
-    P_new[336] = t99;
-    P_new[337] = t122;
-    P_new[338] = t144;
-    P_new[339] = t165;
-    P_new[340] = t185;
-    P_new[341] = t204;
-    P_new[342] = t222;
-    P_new[343] = t239;
-    P_new[344] = t255;
-    P_new[345] = t270;
-    P_new[346] = t284;
-    P_new[347] = t297;
-    P_new[348] = t309;
     P_new[349] = t320;
     P_new[350] = t330;
     P_new[351] = t331;
-    P_new[352] = t332;
-    P_new[353] = t333;
-    P_new[354] = t334;
-    P_new[355] = t335;
-    P_new[356] = t336;
-    P_new[357] = t337;
-    P_new[358] = t338;
-    P_new[359] = t339;
-    P_new[360] = t100;
-    P_new[361] = t123;
-    P_new[362] = t145;
-    P_new[363] = t166;
-    P_new[364] = t186;
-    P_new[365] = t205;
-    P_new[366] = t223;
-    P_new[367] = t240;
-    P_new[368] = t256;
-    P_new[369] = t271;
-    P_new[370] = t285;
-    P_new[371] = t298;
-    P_new[372] = t310;
     P_new[373] = t321;
     P_new[374] = t331;
     P_new[375] = t340;
-    P_new[376] = t341;
-    P_new[377] = t342;
-    P_new[378] = t343;
-    P_new[379] = t344;
-    P_new[380] = t345;
-    P_new[381] = t346;
-    P_new[382] = t347;
-    P_new[383] = t348;
-    P_new[384] = t101;
-    P_new[385] = t124;
-    P_new[386] = t146;
-    P_new[387] = t167;
-    P_new[388] = t187;
-    P_new[389] = t206;
-    P_new[390] = t224;
-    P_new[391] = t241;
-    P_new[392] = t257;
-    P_new[393] = t272;
-    P_new[394] = t286;
-    P_new[395] = t299;
-    P_new[396] = t311;
-    P_new[397] = t322;
-    P_new[398] = t332;
-    P_new[399] = t341;
-    P_new[400] = t349;
-    P_new[401] = t350;
-    P_new[402] = t351;
-    P_new[403] = t352;
-    P_new[404] = t353;
-    P_new[405] = t354;
-    P_new[406] = t355;
-    P_new[407] = t356;
-    P_new[408] = t102;
-    P_new[409] = t125;
-    P_new[410] = t147;
-    P_new[411] = t168;
-    P_new[412] = t188;
-    P_new[413] = t207;
-    P_new[414] = t225;
-    P_new[415] = t242;
-    P_new[416] = t258;
-    P_new[417] = t273;
-    P_new[418] = t287;
-    P_new[419] = t300;
-    P_new[420] = t312;
-    P_new[421] = t323;
-    P_new[422] = t333;
-    P_new[423] = t342;
-    P_new[424] = t350;
     P_new[425] = t357;
     P_new[426] = t358;
     P_new[427] = t359;
-    P_new[428] = t360;
-    P_new[429] = t361;
-    P_new[430] = t362;
-    P_new[431] = t363;
-    P_new[432] = t103;
-    P_new[433] = t126;
-    P_new[434] = t148;
-    P_new[435] = t169;
-    P_new[436] = t189;
-    P_new[437] = t208;
-    P_new[438] = t226;
-    P_new[439] = t243;
-    P_new[440] = t259;
-    P_new[441] = t274;
-    P_new[442] = t288;
-    P_new[443] = t301;
-    P_new[444] = t313;
-    P_new[445] = t324;
-    P_new[446] = t334;
-    P_new[447] = t343;
-    P_new[448] = t351;
     P_new[449] = t358;
     P_new[450] = t364;
     P_new[451] = t365;
-    P_new[452] = t366;
-    P_new[453] = t367;
-    P_new[454] = t368;
-    P_new[455] = t369;
-    P_new[456] = t104;
-    P_new[457] = t127;
-    P_new[458] = t149;
-    P_new[459] = t170;
-    P_new[460] = t190;
-    P_new[461] = t209;
-    P_new[462] = t227;
-    P_new[463] = t244;
-    P_new[464] = t260;
-    P_new[465] = t275;
-    P_new[466] = t289;
-    P_new[467] = t302;
-    P_new[468] = t314;
-    P_new[469] = t325;
-    P_new[470] = t335;
-    P_new[471] = t344;
-    P_new[472] = t352;
     P_new[473] = t359;
     P_new[474] = t365;
     P_new[475] = t370;
-    P_new[476] = t371;
-    P_new[477] = t372;
-    P_new[478] = t373;
-    P_new[479] = t374;
-    P_new[480] = t105;
-    P_new[481] = t128;
-    P_new[482] = t150;
-    P_new[483] = t171;
-    P_new[484] = t191;
-    P_new[485] = t210;
-    P_new[486] = t228;
-    P_new[487] = t245;
-    P_new[488] = t261;
-    P_new[489] = t276;
-    P_new[490] = t290;
-    P_new[491] = t303;
-    P_new[492] = t315;
-    P_new[493] = t326;
-    P_new[494] = t336;
-    P_new[495] = t345;
-    P_new[496] = t353;
-    P_new[497] = t360;
-    P_new[498] = t366;
-    P_new[499] = t371;
-    P_new[500] = t375;
-    P_new[501] = t376;
-    P_new[502] = t377;
-    P_new[503] = t378;
-    P_new[504] = t106;
-    P_new[505] = t129;
-    P_new[506] = t151;
-    P_new[507] = t172;
-    P_new[508] = t192;
-    P_new[509] = t211;
-    P_new[510] = t229;
-    P_new[511] = t246;
-    P_new[512] = t262;
-    P_new[513] = t277;
-    P_new[514] = t291;
-    P_new[515] = t304;
-    P_new[516] = t316;
-    P_new[517] = t327;
-    P_new[518] = t337;
-    P_new[519] = t346;
-    P_new[520] = t354;
-    P_new[521] = t361;
-    P_new[522] = t367;
-    P_new[523] = t372;
-    P_new[524] = t376;
     P_new[525] = t379;
     P_new[526] = t380;
     P_new[527] = t381;
-    P_new[528] = t107;
-    P_new[529] = t130;
-    P_new[530] = t152;
-    P_new[531] = t173;
-    P_new[532] = t193;
-    P_new[533] = t212;
-    P_new[534] = t230;
-    P_new[535] = t247;
-    P_new[536] = t263;
-    P_new[537] = t278;
-    P_new[538] = t292;
-    P_new[539] = t305;
-    P_new[540] = t317;
-    P_new[541] = t328;
-    P_new[542] = t338;
-    P_new[543] = t347;
-    P_new[544] = t355;
-    P_new[545] = t362;
-    P_new[546] = t368;
-    P_new[547] = t373;
-    P_new[548] = t377;
     P_new[549] = t380;
     P_new[550] = t382;
     P_new[551] = t383;
-    P_new[552] = t108;
-    P_new[553] = t131;
-    P_new[554] = t153;
-    P_new[555] = t174;
-    P_new[556] = t194;
-    P_new[557] = t213;
-    P_new[558] = t231;
-    P_new[559] = t248;
-    P_new[560] = t264;
-    P_new[561] = t279;
-    P_new[562] = t293;
-    P_new[563] = t306;
-    P_new[564] = t318;
-    P_new[565] = t329;
-    P_new[566] = t339;
-    P_new[567] = t348;
-    P_new[568] = t356;
-    P_new[569] = t363;
-    P_new[570] = t369;
-    P_new[571] = t374;
-    P_new[572] = t378;
     P_new[573] = t381;
     P_new[574] = t383;
     P_new[575] = t384;

@@ -5416,41 +5416,44 @@ def run(z_gnss, z_baro, z_mag, z_airspeed, us, x0, P0, p):
     x = x0
     P = P0.reshape((529,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _predict(x, P, us[k], p_rows[k])
-        present = ~np.isnan(z_gnss[k]).any(axis=0)
-        if np.any(present):
-            x_up, P_up = _update_gnss(x, P, z_gnss[k], p_rows[k])
-            if np.all(present):
-                x, P = x_up, P_up
-            else:  # tracks without this measurement keep x and P
-                x = [np.where(present, a, b) for a, b in zip(x_up, x)]
-                P = [np.where(present, a, b) for a, b in zip(P_up, P)]
-        present = ~np.isnan(z_baro[k]).any(axis=0)
-        if np.any(present):
-            x_up, P_up = _update_baro(x, P, z_baro[k], p_rows[k])
-            if np.all(present):
-                x, P = x_up, P_up
-            else:  # tracks without this measurement keep x and P
-                x = [np.where(present, a, b) for a, b in zip(x_up, x)]
-                P = [np.where(present, a, b) for a, b in zip(P_up, P)]
-        present = ~np.isnan(z_mag[k]).any(axis=0)
-        if np.any(present):
-            x_up, P_up = _update_mag(x, P, z_mag[k], p_rows[k])
-            if np.all(present):
-                x, P = x_up, P_up
-            else:  # tracks without this measurement keep x and P
-                x = [np.where(present, a, b) for a, b in zip(x_up, x)]
-                P = [np.where(present, a, b) for a, b in zip(P_up, P)]
-        present = ~np.isnan(z_airspeed[k]).any(axis=0)
-        if np.any(present):
-            x_up, P_up = _update_airspeed(x, P, z_airspeed[k], p_rows[k])
-            if np.all(present):
-                x, P = x_up, P_up
-            else:  # tracks without this measurement keep x and P
-                x = [np.where(present, a, b) for a, b in zip(x_up, x)]
-                P = [np.where(present, a, b) for a, b in zip(P_up, P)]
-        for i in range(24):
-            xs[k, i] = x[i]
-        for i in range(529):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _predict(x, P, us[k], p_rows[k])
+            present = ~np.isnan(z_gnss[k]).any(axis=0)
+            if np.any(present):
+                x_up, P_up = _update_gnss(x, P, z_gnss[k], p_rows[k])
+                if np.all(present):
+                    x, P = x_up, P_up
+                else:  # tracks without this measurement keep x and P
+                    x = [np.where(present, a, b) for a, b in zip(x_up, x)]
+                    P = [np.where(present, a, b) for a, b in zip(P_up, P)]
+            present = ~np.isnan(z_baro[k]).any(axis=0)
+            if np.any(present):
+                x_up, P_up = _update_baro(x, P, z_baro[k], p_rows[k])
+                if np.all(present):
+                    x, P = x_up, P_up
+                else:  # tracks without this measurement keep x and P
+                    x = [np.where(present, a, b) for a, b in zip(x_up, x)]
+                    P = [np.where(present, a, b) for a, b in zip(P_up, P)]
+            present = ~np.isnan(z_mag[k]).any(axis=0)
+            if np.any(present):
+                x_up, P_up = _update_mag(x, P, z_mag[k], p_rows[k])
+                if np.all(present):
+                    x, P = x_up, P_up
+                else:  # tracks without this measurement keep x and P
+                    x = [np.where(present, a, b) for a, b in zip(x_up, x)]
+                    P = [np.where(present, a, b) for a, b in zip(P_up, P)]
+            present = ~np.isnan(z_airspeed[k]).any(axis=0)
+            if np.any(present):
+                x_up, P_up = _update_airspeed(x, P, z_airspeed[k], p_rows[k])
+                if np.all(present):
+                    x, P = x_up, P_up
+                else:  # tracks without this measurement keep x and P
+                    x = [np.where(present, a, b) for a, b in zip(x_up, x)]
+                    P = [np.where(present, a, b) for a, b in zip(P_up, P)]
+            for i in range(24):
+                xs[k, i] = x[i]
+            for i in range(529):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 23, 23) + track)

@@ -17,8 +17,9 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 123, sub 36, mul 174, div 12, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 345, instructions 360)
+    step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 123, sub 36, mul 174, div 12, sqrt 0, fma 0, neg 0, cmp 18, calls 0 (flops 345, instructions 363)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -84,6 +85,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -370,6 +392,7 @@ def _step_in_pattern(x, P, z):
     t222 = 0.5*t219
     t223 = 0.5*t220
     t224 = 0.5*t221
+    _require_present((z[0], z[1], z[2],), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t67, t68, t142, t143, t217, t218]
     P_new = [
         t72, t73, 0.0, 0.0, 0.0, 0.0, t73, t74, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t147, t148, 0.0,
@@ -466,6 +489,8 @@ def run(zs, x0, P0):
                 t198 = x_5 + (P_1*t193 + P_7*t194)
                 x_4 = 0.5*(t150 + t11*t164 + (0.061224489795918366*z_2 + (t39*t197 + t40*t198)))
                 x_5 = 0.5*(x_5 + t12*t164 + (0.12244897959183673*z_2 + (t42*t198 - t41*t197)))
+                if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                    raise NumericalError(f"step {len(rows) // 80}: " + _nan_named((z_0, z_1, z_2,), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
                 keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, t72, t73, 0.0, t74))
                 P_0 = t72
                 P_1 = t73
@@ -589,6 +614,8 @@ def run(zs, x0, P0):
             t222 = 0.5*(t154 - t161*t157 + (0.0020408163265306124 + (0.9387755102040817*t205 + 0.8775510204081632*t206)))
             t223 = 0.5*(t155 - t161*t158 + (0.004081632653061225 + (0.7551020408163265*t206 - 0.12244897959183673*t205)))
             P_35 = 0.5*(t156 - t162*t158 + (0.00816326530612245 + (0.7551020408163265*(P_35*t192 - P_29*t191) - 0.12244897959183673*(P_29*t192 - P_28*t191))))
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 128}: " + _nan_named((z_0, z_1, z_2,), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, t72, t73, 0.0, P_7, t147, t148, P_21, t222,
                     t223, P_35))
             P_0 = t72
@@ -606,9 +633,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((36,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step_in_pattern(x, P, zs[k])
-        for i in range(6):
-            xs[k, i] = x[i]
-        for i in range(36):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step_in_pattern(x, P, zs[k])
+            for i in range(6):
+                xs[k, i] = x[i]
+            for i in range(36):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 6, 6) + track)

@@ -10,17 +10,19 @@
  * m: 3 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void mpt3d_a_jssklf_step(x[6], z[3], x_new[6] out)
- *     void mpt3d_a_jssklf_run(steps, z[steps*3], x0[6], xs[steps*6] out)
- *     void mpt3d_a_jssklf_run_tracks(steps, tracks, z[steps*3], x0[6], xs[steps*6] out)
+ *     int mpt3d_a_jssklf_step(x[6], z[3], x_new[6] out)
+ *     int mpt3d_a_jssklf_run(steps, z[steps*3], x0[6], xs[steps*6] out)
+ *     int mpt3d_a_jssklf_run_tracks(steps, tracks, z[steps*3], x0[6], xs[steps*6] out)
  *     many tracks: mpt3d_a_jssklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 0, calls 0 (flops 30, instructions 18)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter jssklf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 3, calls 0 (flops 30, instructions 21)
  * A: (6, 6) constants baked into the code
  * B: (6, 3) constants baked into the code
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 0, calls 0 (flops 72, instructions 42)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 6, calls 0 (flops 72, instructions 48)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["mpt3d_a_jssklf_step","step",false,false,[["x",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_jssklf_run","run",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]],["mpt3d_a_jssklf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["mpt3d_a_jssklf_step","step",true,false,[["x",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_jssklf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]],["mpt3d_a_jssklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter jssklf takes no absent measurements)",[]]],"present":{"1":["z",["zx","zy","zz"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -133,45 +135,55 @@ __extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
 #endif
 #endif
 
-DERIVE_INLINE void mpt3d_a_jssklf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int mpt3d_a_jssklf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.2692823785230639, x[1 * s], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*z[0]));
     const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.20683480863417478), x[0], 0.20683480863417478*z[0]));
     const double t2 = DERIVE_FMA(0.2692823785230639, x[3 * s], DERIVE_FMA(0.634641189261532, x[2 * s], 0.36535881073846804*z[1 * s]));
     const double t3 = DERIVE_FMA(0.5863303827316504, x[3 * s], DERIVE_FMA((-0.20683480863417478), x[2 * s], 0.20683480863417478*z[1 * s]));
     const double t4 = DERIVE_FMA(0.2692823785230639, x[5 * s], DERIVE_FMA(0.634641189261532, x[4 * s], 0.36535881073846804*z[2 * s]));
     const double t5 = DERIVE_FMA(0.5863303827316504, x[5 * s], DERIVE_FMA((-0.20683480863417478), x[4 * s], 0.20683480863417478*z[2 * s]));
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
     x_new[3 * s] = t3;
     x_new[4 * s] = t4;
     x_new[5 * s] = t5;
+    return status;
 }
 
-DERIVE_INLINE void mpt3d_a_jssklf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int mpt3d_a_jssklf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.3287861290153685, x[1 * s], DERIVE_FMA(0.34707246987691837, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.2875687193846137*z[0])));
     const double t1 = DERIVE_FMA(0.28808634848387027, x[1 * s], DERIVE_FMA((-0.2525394214409774), x[0], DERIVE_FMA(0.20683480863417478, zn[0], 0.045704612806802644*z[0])));
     const double t2 = DERIVE_FMA(0.3287861290153685, x[3 * s], DERIVE_FMA(0.34707246987691837, x[2 * s], DERIVE_FMA(0.36535881073846804, zn[1 * s], 0.2875687193846137*z[1 * s])));
     const double t3 = DERIVE_FMA(0.28808634848387027, x[3 * s], DERIVE_FMA((-0.2525394214409774), x[2 * s], DERIVE_FMA(0.20683480863417478, zn[1 * s], 0.045704612806802644*z[1 * s])));
     const double t4 = DERIVE_FMA(0.3287861290153685, x[5 * s], DERIVE_FMA(0.34707246987691837, x[4 * s], DERIVE_FMA(0.36535881073846804, zn[2 * s], 0.2875687193846137*z[2 * s])));
     const double t5 = DERIVE_FMA(0.28808634848387027, x[5 * s], DERIVE_FMA((-0.2525394214409774), x[4 * s], DERIVE_FMA(0.20683480863417478, zn[2 * s], 0.045704612806802644*z[2 * s])));
+    if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])) && !status) {
+        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
     x_new[3 * s] = t3;
     x_new[4 * s] = t4;
     x_new[5 * s] = t5;
+    return status;
 }
 
-void mpt3d_a_jssklf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int mpt3d_a_jssklf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    mpt3d_a_jssklf_step_body(x, z, x_new, 1);
+    return mpt3d_a_jssklf_step_body(x, z, x_new, 1);
 }
 
 /* Run the joint steady-state Kalman-Lainiotis filter over steps steps. */
-void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
+int mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
 #if DERIVE_VECTOR
     (void)mpt3d_a_jssklf_pass_body;
@@ -183,13 +195,27 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
         const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
         const derive_vd a0 = 0.36535881073846804 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.634641189261532, 0.634641189261532, 0.634641189261532, 0.634641189261532}), x_v0, a0);
         const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.2692823785230639, 0.2692823785230639, 0.2692823785230639, 0.2692823785230639}), x_v1, a1);
         const derive_vd a3 = 0.20683480863417478 * az0;
         const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478)}), x_v0, a3);
         const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 1;
+        }
+        if (step_status) {
+            return step_status;
+        }
         const derive_vd bzn0 = {znk[0], znk[1], znk[2], znk[0]};
+        int pass_status = 0;
         const derive_vd b0 = 0.2875687193846137 * az0;
         const derive_vd b1 = DERIVE_VFMA(((derive_vd){0.36535881073846804, 0.36535881073846804, 0.36535881073846804, 0.36535881073846804}), bzn0, b0);
         const derive_vd b2 = DERIVE_VFMA(((derive_vd){0.34707246987691837, 0.34707246987691837, 0.34707246987691837, 0.34707246987691837}), x_v0, b1);
@@ -198,6 +224,18 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
         const derive_vd b5 = DERIVE_VFMA(((derive_vd){0.20683480863417478, 0.20683480863417478, 0.20683480863417478, 0.20683480863417478}), bzn0, b4);
         const derive_vd b6 = DERIVE_VFMA(((derive_vd){(-0.2525394214409774), (-0.2525394214409774), (-0.2525394214409774), (-0.2525394214409774)}), x_v0, b5);
         const derive_vd b7 = DERIVE_VFMA(((derive_vd){0.28808634848387027, 0.28808634848387027, 0.28808634848387027, 0.28808634848387027}), x_v1, b6);
+        if (!(bzn0[0] == bzn0[0]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (!(bzn0[1] == bzn0[1]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (!(bzn0[2] == bzn0[2]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (pass_status) {
+            return pass_status;
+        }
         { const derive_vd lo = DERIVE_PAIRS_LO(a2, a5);
           const derive_vd hi = DERIVE_PAIRS_HI(a2, a5);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
@@ -212,12 +250,25 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
         const derive_vd a0 = 0.36535881073846804 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.634641189261532, 0.634641189261532, 0.634641189261532, 0.634641189261532}), x_v0, a0);
         const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.2692823785230639, 0.2692823785230639, 0.2692823785230639, 0.2692823785230639}), x_v1, a1);
         const derive_vd a3 = 0.20683480863417478 * az0;
         const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478)}), x_v0, a3);
         const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 1;
+        }
+        if (step_status) {
+            return step_status;
+        }
         { const derive_vd lo = DERIVE_PAIRS_LO(a2, a5);
           const derive_vd hi = DERIVE_PAIRS_HI(a2, a5);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
@@ -225,6 +276,7 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
         x_v0 = a2;
         x_v1 = a5;
     }
+    return 0;
 #else
     double x[6];
     double x_new[6];
@@ -241,8 +293,14 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
-        mpt3d_a_jssklf_step_body(x, zk, x_mid, 1);
-        mpt3d_a_jssklf_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = mpt3d_a_jssklf_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = mpt3d_a_jssklf_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 6 + 0] = x_mid[0];
         xs[k * 6 + 1] = x_mid[1];
         xs[k * 6 + 2] = x_mid[2];
@@ -259,7 +317,10 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        mpt3d_a_jssklf_step_body(x, zk, x_new, 1);
+        const int step_status = mpt3d_a_jssklf_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 6 + 0] = x[0] = x_new[0];
         xs[k * 6 + 1] = x[1] = x_new[1];
         xs[k * 6 + 2] = x[2] = x_new[2];
@@ -267,6 +328,7 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
         xs[k * 6 + 4] = x[4] = x_new[4];
         xs[k * 6 + 5] = x[5] = x_new[5];
     }
+    return 0;
 #endif
 }
 
@@ -277,7 +339,7 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
  * over the lanes in one loop the compiler vectorises, each lane the operations of its own
  * run in the same order; the last tracks, fewer than a block, by run itself.
  * A non-zero status stops the whole run. */
-void mpt3d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
+int mpt3d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
 {
     size_t t = 0;
     size_t k, i, j;
@@ -296,6 +358,7 @@ void mpt3d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
         double z_b[3 * DERIVE_LANES];
         double x_mid_b[6 * DERIVE_LANES];
         double zn_b[3 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 6; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 6 + i];
@@ -326,8 +389,22 @@ void mpt3d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                mpt3d_a_jssklf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
-                mpt3d_a_jssklf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                const int step_status = mpt3d_a_jssklf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
+                const int pass_status = mpt3d_a_jssklf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = step_status ? step_status : pass_status;
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 6; ++i) {
@@ -365,7 +442,20 @@ void mpt3d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                mpt3d_a_jssklf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+                status_b[j] = mpt3d_a_jssklf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 6; ++i) {
@@ -381,6 +471,10 @@ void mpt3d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
     }
     /* the last tracks, fewer than a block: run on each */
     for (; t < tracks; ++t) {
-        mpt3d_a_jssklf_run(steps, z + t * steps * 3, x0 + t * 6, xs + t * steps * 6);
+        const int track_status = mpt3d_a_jssklf_run(steps, z + t * steps * 3, x0 + t * 6, xs + t * steps * 6);
+        if (track_status) {
+            return track_status;
+        }
     }
+    return 0;
 }

@@ -19,12 +19,13 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
+ *     step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 18, calls 0 (flops 75, instructions 78)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]],"present":{"4":["z",["zx","zy","zz"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -209,6 +210,9 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t72 = DERIVE_FNMA(t61, t57, t54);
     const double t73 = DERIVE_FNMA(t61, t58, t55);
     const double t74 = DERIVE_FNMA(t62, t58, t56);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t17;
     x_new[1 * s] = t18;
     x_new[2 * s] = t42;
@@ -257,40 +261,40 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
 int mpt3d_a_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
     if (!(P[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[4] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[8] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[9] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[10] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[11] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[16] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[17] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[22] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[23] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     return mpt3d_a_kf_step_body(x, P, z, x_new, P_new, 1);
 }
@@ -300,40 +304,40 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
 {
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[4] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[8] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[9] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[10] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[11] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[16] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[17] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[22] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[23] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
 #if DERIVE_VECTOR
     /* the identical blocks in the lanes of one vector (lane b: block b) */
@@ -375,6 +379,15 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
         }
         if (!(a10[2] > 0.0) && !step_status) {
             step_status = 3;
+        }
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 4;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 4;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 4;
         }
         if (step_status) {
             return step_status;
@@ -582,40 +595,40 @@ int mpt3d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 36 + 2] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 3] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 4] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 5] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 8] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 9] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 10] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 11] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 16] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 17] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 22] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 23] == 0.0)) {
-            return 4; /* outside P's pattern */
+            return 5; /* outside P's pattern */
         }
     }
     t = 0;

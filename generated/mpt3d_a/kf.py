@@ -17,8 +17,9 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
+    step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 18, calls 0 (flops 75, instructions 93)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -84,6 +85,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -220,6 +242,7 @@ def _step_in_pattern(x, P, z):
     t72 = t54 - t69
     t73 = t55 - t70
     t74 = t56 - t71
+    _require_present((z[0], z[1], z[2],), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t17, t18, t42, t43, t67, t68]
     P_new = [
         t22, t23, 0.0, 0.0, 0.0, 0.0, t23, t24, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t47, t48, 0.0,
@@ -290,6 +313,8 @@ def run(zs, x0, P0):
                 t64 = z_2 - (x_5 + t50)
                 x_4 = t50 + t11*t64
                 x_5 = x_5 + t12*t64
+                if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                    raise NumericalError(f"step {len(rows) // 80}: " + _nan_named((z_0, z_1, z_2,), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
                 keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7))
             table = np.frombuffer(rows).reshape(-1, 10)
             return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
@@ -356,6 +381,8 @@ def run(zs, x0, P0):
             P_28 = t54 - t61*t57
             P_29 = t55 - t61*t58
             P_35 = t56 - t62*t58
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 128}: " + _nan_named((z_0, z_1, z_2,), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7, P_14, P_15, P_21, P_28,
                     P_29, P_35))
         table = np.frombuffer(rows).reshape(-1, 16)
@@ -367,9 +394,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((36,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step_in_pattern(x, P, zs[k])
-        for i in range(6):
-            xs[k, i] = x[i]
-        for i in range(36):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step_in_pattern(x, P, zs[k])
+            for i in range(6):
+                xs[k, i] = x[i]
+            for i in range(36):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 6, 6) + track)

@@ -17,11 +17,12 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
+ *     step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 18, calls 0 (flops 75, instructions 78)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["mpt3d_a_kfp_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false],["x_pred",[6],true,false,false],["P_pred",[6,6],true,false,false]]],["mpt3d_a_kfp_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false],["x_preds",["steps",6],true,false,false],["P_preds",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_kfp_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false],["x_pred",[6],true,false,false],["P_pred",[6,6],true,false,false]]],["mpt3d_a_kfp_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false],["x_preds",["steps",6],true,false,false],["P_preds",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]],"present":{"4":["z",["zx","zy","zz"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -130,6 +131,9 @@ DERIVE_INLINE int mpt3d_a_kfp_step_body(const double *restrict x, const double *
     const double t72 = DERIVE_FNMA(t25, t37, t18);
     const double t73 = DERIVE_FNMA(t26, t37, t19);
     const double t74 = DERIVE_FNMA(t26, t38, t20);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t51;
     x_new[1 * s] = t52;
     x_new[2 * s] = t53;
@@ -220,40 +224,40 @@ DERIVE_INLINE int mpt3d_a_kfp_step_body(const double *restrict x, const double *
 int mpt3d_a_kfp_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
 {
     if (!(P[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[4] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[8] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[9] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[10] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[11] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[16] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[17] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[22] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[23] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     return mpt3d_a_kfp_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
@@ -270,40 +274,40 @@ int mpt3d_a_kfp_run(size_t steps, const double *z, const double *x0, const doubl
     size_t k;
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[4] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[8] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[9] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[10] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[11] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[16] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[17] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[22] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P0[23] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     x[0] = x0[0];
     x[1] = x0[1];

@@ -17,8 +17,9 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
+    step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 18, calls 0 (flops 75, instructions 93)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -81,6 +82,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -219,6 +241,7 @@ def _step_in_pattern(x, P, z):
     t72 = t18 - t63
     t73 = t19 - t64
     t74 = t20 - t65
+    _require_present((z[0], z[1], z[2],), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t51, t52, t53, t54, t55, t56]
     P_new = [
         t66, t67, 0.0, 0.0, 0.0, 0.0, t67, t68, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t69, t70, 0.0,
@@ -266,13 +289,16 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((36,) + P0.shape[2:])
     for k in range(steps):
-        x, P, x_pred, P_pred = _step_in_pattern(x, P, zs[k])
-        for i in range(6):
-            xs[k, i] = x[i]
-        for i in range(36):
-            Ps[k, i] = P[i]
-        for i in range(6):
-            x_preds[k, i] = x_pred[i]
-        for i in range(36):
-            P_preds[k, i] = P_pred[i]
+        try:
+            x, P, x_pred, P_pred = _step_in_pattern(x, P, zs[k])
+            for i in range(6):
+                xs[k, i] = x[i]
+            for i in range(36):
+                Ps[k, i] = P[i]
+            for i in range(6):
+                x_preds[k, i] = x_pred[i]
+            for i in range(36):
+                P_preds[k, i] = P_pred[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 6, 6) + track), x_preds, P_preds.reshape((steps, 6, 6) + track)

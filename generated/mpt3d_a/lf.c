@@ -16,12 +16,13 @@
  *     many tracks: mpt3d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
- *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 0, mul 75, div 6, sqrt 0, fma 69, neg 0, cmp 12, calls 0 (flops 240, instructions 183)
+ *     step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 2: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 0, mul 75, div 6, sqrt 0, fma 69, neg 0, cmp 15, calls 0 (flops 240, instructions 186)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["mpt3d_a_lf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_lf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_lf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_lf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",2,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]],"present":{"1":["z",["zx","zy","zz"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -134,8 +135,9 @@ __extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
 #endif
 #endif
 
-DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+DERIVE_INLINE int mpt3d_a_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
+    int status = 0;
     const double t0 = 16.3265306122449*P[1 * s];
     const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
     const double t2 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
@@ -250,6 +252,9 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t117 = 0.0020408163265306124 + t114;
     const double t118 = 0.004081632653061225 + t115;
     const double t119 = 0.00816326530612245 + t116;
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t28;
     x_new[1 * s] = t29;
     x_new[2 * s] = t68;
@@ -292,48 +297,48 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     P_new[33 * s] = 0.0;
     P_new[34 * s] = t118;
     P_new[35 * s] = t119;
+    return status;
 }
 
 int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
     if (!(P[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[4] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[8] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[9] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[10] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[11] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[16] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[17] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[22] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P[23] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
-    mpt3d_a_lf_step_body(x, P, z, x_new, P_new, 1);
-    return 0;
+    return mpt3d_a_lf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
@@ -341,40 +346,40 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
 {
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[4] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[8] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[9] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[10] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[11] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[16] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[17] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[22] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
     if (!(P0[23] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 2; /* outside P's pattern */
     }
 #if DERIVE_VECTOR
     /* the identical blocks in the lanes of one vector (lane b: block b) */
@@ -387,6 +392,7 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
         const derive_vd a0 = 16.3265306122449 * P_v1;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v0, a0);
         const derive_vd a2 = 16.3265306122449 * P_v0;
@@ -444,6 +450,18 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
         const derive_vd a54 = 0.0020408163265306124 + a49;
         const derive_vd a55 = 0.004081632653061225 + a51;
         const derive_vd a56 = 0.00816326530612245 + a53;
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 1;
+        }
+        if (step_status) {
+            return step_status;
+        }
         { const derive_vd lo = DERIVE_PAIRS_LO(a38, a39);
           const derive_vd hi = DERIVE_PAIRS_HI(a38, a39);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
@@ -544,7 +562,10 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
     /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        mpt3d_a_lf_step_body(x, P, zk, x_new, P_new, 1);
+        const int step_status = mpt3d_a_lf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 6 + 0] = x[0] = x_new[0];
         xs[k * 6 + 1] = x[1] = x_new[1];
         xs[k * 6 + 2] = x[2] = x_new[2];
@@ -644,40 +665,40 @@ int mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const do
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 36 + 2] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 3] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 4] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 5] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 8] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 9] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 10] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 11] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 16] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 17] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 22] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
         if (!(P0[t * 36 + 23] == 0.0)) {
-            return 1; /* outside P's pattern */
+            return 2; /* outside P's pattern */
         }
     }
     t = 0;
@@ -698,6 +719,7 @@ int mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const do
         double *P_b = P_b_pair[0];
         double *P_new_b = P_b_pair[1];
         double z_b[3 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 6; ++i) {
                 x_b[i * DERIVE_LANES + j] = x0[(t + j) * 6 + i];
@@ -733,7 +755,20 @@ int mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const do
             }
             DERIVE_SIMD
             for (j = 0; j < DERIVE_LANES; ++j) {
-                mpt3d_a_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+                status_b[j] = mpt3d_a_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
+            }
+            {
+                int failed = 0;
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    failed |= status_b[j];
+                }
+                if (failed) {
+                    for (j = 0; j < DERIVE_LANES; ++j) {
+                        if (status_b[j]) {
+                            return status_b[j];
+                        }
+                    }
+                }
             }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 6; ++i) {

@@ -14,8 +14,9 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     run(zs[steps, 3], x0[6], P0[6, 6]) -> (xs[steps, 6], Ps[steps, 6, 6])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
-    step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 66, sub 24, mul 144, div 6, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 240, instructions 252)
+    step 1: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 2: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 66, sub 24, mul 144, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 240, instructions 255)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
@@ -38,6 +39,13 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
 
 try:
     from derive.errors import PatternError
@@ -65,6 +73,27 @@ def _require_zero(values, indices, n, name, message):
             value = float(value[value != 0][0])
             entry = f"{name}[{k // n}][{k % n}]"
             raise PatternError(f"{entry} = {value!r}: {message}")
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -110,6 +139,7 @@ def step(x, P, z):
     Returns:
         x_new [6]: x(k+1/k+1)
         P_new [(6, 6) array, symmetric, then any track axes]: P(k+1/k+1)
+    Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 12 entries).
     """
     if len(P) == 6:  # a 2-D (6, 6) P: flattened, row-major
@@ -242,6 +272,7 @@ def _step_in_pattern(x, P, z):
     t117 = 0.0020408163265306124 + t114
     t118 = 0.004081632653061225 + t115
     t119 = 0.00816326530612245 + t116
+    _require_present((z[0], z[1], z[2],), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t28, t29, t68, t69, t108, t109]
     P_new = [
         t37, t38, 0.0, 0.0, 0.0, 0.0, t38, t39, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t77, t78, 0.0,
@@ -321,6 +352,8 @@ def run(zs, x0, P0):
                 t103 = x_5 + (P_1*t98 + P_7*t99)
                 x_4 = 0.061224489795918366*z_2 + (t14*t102 + t15*t103)
                 x_5 = 0.12244897959183673*z_2 + (t17*t103 - t16*t102)
+                if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                    raise NumericalError(f"step {len(rows) // 80}: " + _nan_named((z_0, z_1, z_2,), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
                 keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, t37, t38, 0.0, t39))
                 P_0 = t37
                 P_1 = t38
@@ -405,6 +438,8 @@ def run(zs, x0, P0):
             t117 = 0.0020408163265306124 + (0.9387755102040817*t110 + 0.8775510204081632*t111)
             t118 = 0.004081632653061225 + (0.7551020408163265*t111 - 0.12244897959183673*t110)
             P_35 = 0.00816326530612245 + (0.7551020408163265*(P_35*t97 - P_29*t96) - 0.12244897959183673*(P_29*t97 - P_28*t96))
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 128}: " + _nan_named((z_0, z_1, z_2,), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)'))
             keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, t37, t38, 0.0, P_7, t77, t78, P_21, t117, t118,
                     P_35))
             P_0 = t37
@@ -422,9 +457,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((36,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step_in_pattern(x, P, zs[k])
-        for i in range(6):
-            xs[k, i] = x[i]
-        for i in range(36):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step_in_pattern(x, P, zs[k])
+            for i in range(6):
+                xs[k, i] = x[i]
+            for i in range(36):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 6, 6) + track)

@@ -11,17 +11,19 @@
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
  *     void mpt3d_a_pred_init(x0[6], x_new[6] out)
- *     void mpt3d_a_pred_step(x[6], z[3], x_new[6] out)
- *     void mpt3d_a_pred_run(steps, z[steps*3], x0[6], xs[steps*6] out)
+ *     int mpt3d_a_pred_step(x[6], z[3], x_new[6] out)
+ *     int mpt3d_a_pred_run(steps, z[steps*3], x0[6], xs[steps*6] out)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter pred takes no absent measurements)
  * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 3, instructions 3)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 0, calls 0 (flops 30, instructions 18)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 3, calls 0 (flops 30, instructions 21)
  * A_N: (6, 6) constants baked into the code
  * B_N: (6, 3) constants baked into the code
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 0, calls 0 (flops 72, instructions 42)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 6, calls 0 (flops 72, instructions 48)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["mpt3d_a_pred_init","init",false,false,[["x0",[6],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_pred_step","step",false,false,[["x",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_pred_run","run",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["mpt3d_a_pred_init","init",false,false,[["x0",[6],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_pred_step","step",true,false,[["x",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_pred_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter pred takes no absent measurements)",[]]],"present":{"1":["z",["zx","zy","zz"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -98,36 +100,46 @@ __extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
 #endif
 #endif
 
-DERIVE_INLINE void mpt3d_a_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+DERIVE_INLINE int mpt3d_a_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.42780638062735715, x[1 * s], DERIVE_FMA(0.4278063806273572, x[0], 0.5721936193726429*z[0]));
     const double t1 = DERIVE_FMA(0.7931651913658252, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
     const double t2 = DERIVE_FMA(0.42780638062735715, x[3 * s], DERIVE_FMA(0.4278063806273572, x[2 * s], 0.5721936193726429*z[1 * s]));
     const double t3 = DERIVE_FMA(0.7931651913658252, x[3 * s], DERIVE_FMA((-0.2068348086341748), x[2 * s], 0.2068348086341748*z[1 * s]));
     const double t4 = DERIVE_FMA(0.42780638062735715, x[5 * s], DERIVE_FMA(0.4278063806273572, x[4 * s], 0.5721936193726429*z[2 * s]));
     const double t5 = DERIVE_FMA(0.7931651913658252, x[5 * s], DERIVE_FMA((-0.2068348086341748), x[4 * s], 0.2068348086341748*z[2 * s]));
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
     x_new[3 * s] = t3;
     x_new[4 * s] = t4;
     x_new[5 * s] = t5;
+    return status;
 }
 
-DERIVE_INLINE void mpt3d_a_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+DERIVE_INLINE int mpt3d_a_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
+    int status = 0;
     const double t0 = DERIVE_FMA(0.522339429063298, x[1 * s], DERIVE_FMA(0.09453304843594088, x[0], DERIVE_FMA(0.5721936193726429, zn[0], 0.33327333219141636*z[0])));
     const double t1 = DERIVE_FMA(0.5406257699248478, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, zn[0], 0.04570461280680264*z[0])));
     const double t2 = DERIVE_FMA(0.522339429063298, x[3 * s], DERIVE_FMA(0.09453304843594088, x[2 * s], DERIVE_FMA(0.5721936193726429, zn[1 * s], 0.33327333219141636*z[1 * s])));
     const double t3 = DERIVE_FMA(0.5406257699248478, x[3 * s], DERIVE_FMA((-0.25253942144097746), x[2 * s], DERIVE_FMA(0.2068348086341748, zn[1 * s], 0.04570461280680264*z[1 * s])));
     const double t4 = DERIVE_FMA(0.522339429063298, x[5 * s], DERIVE_FMA(0.09453304843594088, x[4 * s], DERIVE_FMA(0.5721936193726429, zn[2 * s], 0.33327333219141636*z[2 * s])));
     const double t5 = DERIVE_FMA(0.5406257699248478, x[5 * s], DERIVE_FMA((-0.25253942144097746), x[4 * s], DERIVE_FMA(0.2068348086341748, zn[2 * s], 0.04570461280680264*z[2 * s])));
+    if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])) && !status) {
+        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
+    }
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
     x_new[3 * s] = t3;
     x_new[4 * s] = t4;
     x_new[5 * s] = t5;
+    return status;
 }
 
 void mpt3d_a_pred_init(const double *restrict x0, double *restrict x_new)
@@ -143,16 +155,17 @@ void mpt3d_a_pred_init(const double *restrict x0, double *restrict x_new)
     x_new[5] = x0[5];
 }
 
-void mpt3d_a_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
+int mpt3d_a_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    mpt3d_a_pred_step_body(x, z, x_new, 1);
+    return mpt3d_a_pred_step_body(x, z, x_new, 1);
 }
 
 /* Run the predictor from x(N/0) = init(x0): row k of xs is the prediction after z[k]. */
-void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *xs)
+int mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *xs)
 {
 #if DERIVE_VECTOR
     double x_init[6];
+    int status;
     mpt3d_a_pred_init(x0, x_init);
     (void)mpt3d_a_pred_pass_body;
     /* the identical blocks in the lanes of one vector (lane b: block b) */
@@ -163,13 +176,27 @@ void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *x
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
         const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
         const derive_vd a0 = 0.5721936193726429 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.4278063806273572, 0.4278063806273572, 0.4278063806273572, 0.4278063806273572}), x_v0, a0);
         const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.42780638062735715, 0.42780638062735715, 0.42780638062735715, 0.42780638062735715}), x_v1, a1);
         const derive_vd a3 = 0.2068348086341748 * az0;
         const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748)}), x_v0, a3);
         const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.7931651913658252, 0.7931651913658252, 0.7931651913658252, 0.7931651913658252}), x_v1, a4);
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 1;
+        }
+        if (step_status) {
+            return step_status;
+        }
         const derive_vd bzn0 = {znk[0], znk[1], znk[2], znk[0]};
+        int pass_status = 0;
         const derive_vd b0 = 0.33327333219141636 * az0;
         const derive_vd b1 = DERIVE_VFMA(((derive_vd){0.5721936193726429, 0.5721936193726429, 0.5721936193726429, 0.5721936193726429}), bzn0, b0);
         const derive_vd b2 = DERIVE_VFMA(((derive_vd){0.09453304843594088, 0.09453304843594088, 0.09453304843594088, 0.09453304843594088}), x_v0, b1);
@@ -178,6 +205,18 @@ void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *x
         const derive_vd b5 = DERIVE_VFMA(((derive_vd){0.2068348086341748, 0.2068348086341748, 0.2068348086341748, 0.2068348086341748}), bzn0, b4);
         const derive_vd b6 = DERIVE_VFMA(((derive_vd){(-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746)}), x_v0, b5);
         const derive_vd b7 = DERIVE_VFMA(((derive_vd){0.5406257699248478, 0.5406257699248478, 0.5406257699248478, 0.5406257699248478}), x_v1, b6);
+        if (!(bzn0[0] == bzn0[0]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (!(bzn0[1] == bzn0[1]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (!(bzn0[2] == bzn0[2]) && !pass_status) {
+            pass_status = 1;
+        }
+        if (pass_status) {
+            return pass_status;
+        }
         { const derive_vd lo = DERIVE_PAIRS_LO(a2, a5);
           const derive_vd hi = DERIVE_PAIRS_HI(a2, a5);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
@@ -192,12 +231,25 @@ void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *x
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
         const derive_vd a0 = 0.5721936193726429 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.4278063806273572, 0.4278063806273572, 0.4278063806273572, 0.4278063806273572}), x_v0, a0);
         const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.42780638062735715, 0.42780638062735715, 0.42780638062735715, 0.42780638062735715}), x_v1, a1);
         const derive_vd a3 = 0.2068348086341748 * az0;
         const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748)}), x_v0, a3);
         const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.7931651913658252, 0.7931651913658252, 0.7931651913658252, 0.7931651913658252}), x_v1, a4);
+        if (!(az0[0] == az0[0]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[1] == az0[1]) && !step_status) {
+            step_status = 1;
+        }
+        if (!(az0[2] == az0[2]) && !step_status) {
+            step_status = 1;
+        }
+        if (step_status) {
+            return step_status;
+        }
         { const derive_vd lo = DERIVE_PAIRS_LO(a2, a5);
           const derive_vd hi = DERIVE_PAIRS_HI(a2, a5);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
@@ -205,6 +257,7 @@ void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *x
         x_v0 = a2;
         x_v1 = a5;
     }
+    return 0;
 #else
     double x_init[6];
     double x[6];
@@ -223,8 +276,14 @@ void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *x
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
-        mpt3d_a_pred_step_body(x, zk, x_mid, 1);
-        mpt3d_a_pred_pass_body(x, zk, znk, x_new, 1);
+        const int step_status = mpt3d_a_pred_step_body(x, zk, x_mid, 1);
+        if (step_status) {
+            return step_status;
+        }
+        const int pass_status = mpt3d_a_pred_pass_body(x, zk, znk, x_new, 1);
+        if (pass_status) {
+            return pass_status;
+        }
         xs[k * 6 + 0] = x_mid[0];
         xs[k * 6 + 1] = x_mid[1];
         xs[k * 6 + 2] = x_mid[2];
@@ -241,7 +300,10 @@ void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *x
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        mpt3d_a_pred_step_body(x, zk, x_new, 1);
+        const int step_status = mpt3d_a_pred_step_body(x, zk, x_new, 1);
+        if (step_status) {
+            return step_status;
+        }
         xs[k * 6 + 0] = x[0] = x_new[0];
         xs[k * 6 + 1] = x[1] = x_new[1];
         xs[k * 6 + 2] = x[2] = x_new[2];
@@ -249,5 +311,6 @@ void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *x
         xs[k * 6 + 4] = x[4] = x_new[4];
         xs[k * 6 + 5] = x[5] = x_new[5];
     }
+    return 0;
 #endif
 }

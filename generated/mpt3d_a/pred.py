@@ -13,8 +13,10 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     init(x0[6]) -> (x_new[6])
     step(x[6], z[3]) -> (x_new[6])
     run(zs[steps, 3], x0[6]) -> (xs[steps, 6])
+status (C return value; Python raises NumericalError): 0 success
+    step 1: measurement is NaN (filter pred takes no absent measurements)
 operations per call of init (Python): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 3, instructions 3)
-operations per call of step (Python): add 9, sub 3, mul 18, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 30, instructions 30)
+operations per call of step (Python): add 9, sub 3, mul 18, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 30, instructions 33)
 A_N: (6, 6) constants baked into the code
 B_N: (6, 3) constants baked into the code
 N = 1
@@ -38,6 +40,34 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class DtypeError(ValueError):
         """An argument that is not an array of real numbers run takes exactly."""
+
+try:
+    from derive.errors import NumericalError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class NumericalError(ArithmeticError):
+        """A numerical failure such as a non-positive pivot."""
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -88,6 +118,7 @@ def step(x, z):
         z [3]: z(k+1)
     Returns:
         x_new [6]: x(k+1/k)
+    Raises NumericalError when a runtime check fails.
     """
     t0 = 0.4278063806273572*x[0] + 0.42780638062735715*x[1] + 0.5721936193726429*z[0]
     t1 = 0.7931651913658252*x[1] - 0.2068348086341748*x[0] + 0.2068348086341748*z[0]
@@ -95,6 +126,7 @@ def step(x, z):
     t3 = 0.7931651913658252*x[3] - 0.2068348086341748*x[2] + 0.2068348086341748*z[1]
     t4 = 0.4278063806273572*x[4] + 0.42780638062735715*x[5] + 0.5721936193726429*z[2]
     t5 = 0.7931651913658252*x[5] - 0.2068348086341748*x[4] + 0.2068348086341748*z[2]
+    _require_present((z[0], z[1], z[2],), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (filter pred takes no absent measurements)')
     x_new = [t0, t1, t2, t3, t4, t5]
     return x_new
 
@@ -129,6 +161,8 @@ def run(zs, x0):
             x_3 = 0.7931651913658252*x_3 - 0.2068348086341748*x_2 + 0.2068348086341748*z_1
             t4 = 0.4278063806273572*x_4 + 0.42780638062735715*x_5 + 0.5721936193726429*z_2
             x_5 = 0.7931651913658252*x_5 - 0.2068348086341748*x_4 + 0.2068348086341748*z_2
+            if not (z_0 == z_0 and z_1 == z_1 and z_2 == z_2):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 48}: " + _nan_named((z_0, z_1, z_2,), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (filter pred takes no absent measurements)'))
             keep(pack(t0, x_1, t2, x_3, t4, x_5))
             x_0 = t0
             x_2 = t2
@@ -138,7 +172,10 @@ def run(zs, x0):
     xs = np.empty((steps, 6) + track)
     x = init(x0)
     for k in range(steps):
-        x = step(x, zs[k])
-        for i in range(6):
-            xs[k, i] = x[i]
+        try:
+            x = step(x, zs[k])
+            for i in range(6):
+                xs[k, i] = x[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs

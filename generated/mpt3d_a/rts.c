@@ -19,20 +19,21 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- *     backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     backward 8: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
- *     backward 9: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
- *     backward 10: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
- *     backward 11: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
+ *     step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ *     backward 6: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 7: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     backward 8: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     backward 9: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
+ *     backward 10: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
+ *     backward 11: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
+ *     backward 12: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 18, calls 0 (flops 75, instructions 78)
  * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 15, mul 30, div 15, sqrt 0, fma 42, neg 0, cmp 42, calls 0 (flops 165, instructions 165)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 84 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["mpt3d_a_rts_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false],["x_pred",[6],true,false,false],["P_pred",[6,6],true,false,false]]],["mpt3d_a_rts_backward","backward",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["x_pred",[6],false,false,false],["P_pred",[6,6],false,false,false],["x_smooth_next",[6],false,false,false],["P_smooth_next",[6,6],false,false,false],["x_smooth",[6],true,false,false],["P_smooth",[6,6],true,false,false]]],["mpt3d_a_rts_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,false,false],["work",["steps",84],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["backward",5,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",8,"P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["backward",9,"P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive",[]],["backward",10,"P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive",[]],["backward",11,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,2,2,3,3,3,4,4,4,5,5,5,8,8,8,9,9,9,10,10,10,11,11,11,16,16,16,17,17,17,22,22,22,23,23,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_rts_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false],["x_pred",[6],true,false,false],["P_pred",[6,6],true,false,false]]],["mpt3d_a_rts_backward","backward",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["x_pred",[6],false,false,false],["P_pred",[6,6],false,false,false],["x_smooth_next",[6],false,false,false],["P_smooth_next",[6,6],false,false,false],["x_smooth",[6],true,false,false],["P_smooth",[6,6],true,false,false]]],["mpt3d_a_rts_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,false,false],["work",["steps",84],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["backward",6,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",8,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",9,"P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["backward",10,"P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive",[]],["backward",11,"P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive",[]],["backward",12,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,2,2,3,3,3,4,4,4,5,5,5,8,8,8,9,9,9,10,10,10,11,11,11,16,16,16,17,17,17,22,22,22,23,23,23]]],"present":{"4":["z",["zx","zy","zz"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -141,6 +142,9 @@ DERIVE_INLINE int mpt3d_a_rts_step_body(const double *restrict x, const double *
     const double t72 = DERIVE_FNMA(t25, t37, t18);
     const double t73 = DERIVE_FNMA(t26, t37, t19);
     const double t74 = DERIVE_FNMA(t26, t38, t20);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t51;
     x_new[1 * s] = t52;
     x_new[2 * s] = t53;
@@ -231,40 +235,40 @@ DERIVE_INLINE int mpt3d_a_rts_step_body(const double *restrict x, const double *
 int mpt3d_a_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
 {
     if (!(P[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[4] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[8] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[9] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[10] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[11] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[16] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[17] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[22] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     if (!(P[23] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 5; /* outside P's pattern */
     }
     return mpt3d_a_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
@@ -272,112 +276,112 @@ int mpt3d_a_rts_step(const double *restrict x, const double *restrict P, const d
 int mpt3d_a_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)
 {
     if (!(P[2] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[3] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[4] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[8] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[9] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[10] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[11] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[16] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[17] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[22] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P[23] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[2] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[3] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[4] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[5] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[8] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[9] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[10] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[11] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[16] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[17] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[22] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_pred[23] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[2] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[3] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[4] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[5] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[8] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[9] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[10] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[11] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[16] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[17] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[22] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(P_smooth_next[23] == 0.0)) {
-        return 11; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     const double t0 = P[0] + P[1];
     const double t1 = P[1] + P[7];
@@ -386,31 +390,31 @@ int mpt3d_a_rts_backward(const double *restrict x, const double *restrict P, con
     const double t4 = P[28] + P[29];
     const double t5 = P[29] + P[35];
     if (!(P_pred[0] > 0.0)) {
-        return 5; /* P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 6; /* P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t6 = 1.0/P_pred[0];
     const double t7 = P_pred[1]*t6;
     const double t8 = DERIVE_FNMA(P_pred[1], t7, P_pred[7]);
     if (!(t8 > 0.0)) {
-        return 6; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        return 7; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     if (!(P_pred[14] > 0.0)) {
-        return 7; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        return 8; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t9 = 1.0/P_pred[14];
     const double t10 = P_pred[15]*t9;
     const double t11 = DERIVE_FNMA(P_pred[15], t10, P_pred[21]);
     if (!(t11 > 0.0)) {
-        return 8; /* P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
+        return 9; /* P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     }
     if (!(P_pred[28] > 0.0)) {
-        return 9; /* P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive */
+        return 10; /* P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive */
     }
     const double t12 = 1.0/P_pred[28];
     const double t13 = P_pred[29]*t12;
     const double t14 = DERIVE_FNMA(P_pred[29], t13, P_pred[35]);
     if (!(t14 > 0.0)) {
-        return 10; /* P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive */
+        return 11; /* P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive */
     }
     const double t15 = DERIVE_FNMA(t0, t7, P[1]);
     const double t16 = DERIVE_FNMA(t1, t7, P[7]);

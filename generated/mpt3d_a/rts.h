@@ -19,20 +19,21 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- *     backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     backward 8: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
- *     backward 9: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
- *     backward 10: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
- *     backward 11: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
+ *     step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ *     backward 6: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 7: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     backward 8: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     backward 9: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
+ *     backward 10: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
+ *     backward 11: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
+ *     backward 12: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 18, calls 0 (flops 75, instructions 78)
  * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 15, mul 30, div 15, sqrt 0, fma 42, neg 0, cmp 42, calls 0 (flops 165, instructions 165)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 84 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["mpt3d_a_rts_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false],["x_pred",[6],true,false,false],["P_pred",[6,6],true,false,false]]],["mpt3d_a_rts_backward","backward",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["x_pred",[6],false,false,false],["P_pred",[6,6],false,false,false],["x_smooth_next",[6],false,false,false],["P_smooth_next",[6,6],false,false,false],["x_smooth",[6],true,false,false],["P_smooth",[6,6],true,false,false]]],["mpt3d_a_rts_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,false,false],["work",["steps",84],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["backward",5,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",8,"P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["backward",9,"P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive",[]],["backward",10,"P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive",[]],["backward",11,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,2,2,3,3,3,4,4,4,5,5,5,8,8,8,9,9,9,10,10,10,11,11,11,16,16,16,17,17,17,22,22,22,23,23,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_rts_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false],["x_pred",[6],true,false,false],["P_pred",[6,6],true,false,false]]],["mpt3d_a_rts_backward","backward",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["x_pred",[6],false,false,false],["P_pred",[6,6],false,false,false],["x_smooth_next",[6],false,false,false],["P_smooth_next",[6,6],false,false,false],["x_smooth",[6],true,false,false],["P_smooth",[6,6],true,false,false]]],["mpt3d_a_rts_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,false,false],["work",["steps",84],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["backward",6,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",8,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",9,"P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["backward",10,"P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive",[]],["backward",11,"P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive",[]],["backward",12,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,2,2,3,3,3,4,4,4,5,5,5,8,8,8,9,9,9,10,10,10,11,11,11,16,16,16,17,17,17,22,22,22,23,23,23]]],"present":{"4":["z",["zx","zy","zz"]]}}
  */
 #ifndef DERIVE_mpt3d_a_rts_H
 #define DERIVE_mpt3d_a_rts_H
@@ -65,14 +66,15 @@ enum mpt3d_a_rts_status {
     mpt3d_a_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
     mpt3d_a_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2,
     mpt3d_a_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_3 = 3,
-    mpt3d_a_rts_STATUS_STEP_P_OUTSIDE_PATTERN_4 = 4,
-    mpt3d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_5 = 5,
+    mpt3d_a_rts_STATUS_STEP_MEASUREMENT_NAN_4 = 4,
+    mpt3d_a_rts_STATUS_STEP_P_OUTSIDE_PATTERN_5 = 5,
     mpt3d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_6 = 6,
     mpt3d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_7 = 7,
     mpt3d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_8 = 8,
     mpt3d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_9 = 9,
     mpt3d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_10 = 10,
-    mpt3d_a_rts_STATUS_BACKWARD_P_SMOOTH_NEXT_OUTSIDE_PATTERN_11 = 11
+    mpt3d_a_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_11 = 11,
+    mpt3d_a_rts_STATUS_BACKWARD_P_SMOOTH_NEXT_OUTSIDE_PATTERN_12 = 12
 };
 
 #ifdef __cplusplus

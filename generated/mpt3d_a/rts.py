@@ -19,15 +19,16 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-    backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    backward 8: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
-    backward 9: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
-    backward 10: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
-    backward 11: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
+    step 4: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+    backward 6: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    backward 7: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    backward 8: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    backward 9: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
+    backward 10: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
+    backward 11: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
+    backward 12: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 18, calls 0 (flops 75, instructions 93)
 operations per call of backward (Python): add 48, sub 30, mul 72, div 15, sqrt 0, fma 0, neg 0, cmp 42, calls 0 (flops 165, instructions 207)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
@@ -92,6 +93,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -230,6 +252,7 @@ def _step_in_pattern(x, P, z):
     t72 = t18 - t63
     t73 = t19 - t64
     t74 = t20 - t65
+    _require_present((z[0], z[1], z[2],), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t51, t52, t53, t54, t55, t56]
     P_new = [
         t66, t67, 0.0, 0.0, 0.0, 0.0, t67, t68, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t69, t70, 0.0,
@@ -419,8 +442,11 @@ def run(zs, x0, P0):
     P = P0.reshape((36,) + P0.shape[2:])
     work = []  # per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1)
     for k in range(steps):
-        x, P, x_pred, P_pred = _step_in_pattern(x, P, zs[k])
-        work.append((x, P, x_pred, P_pred))
+        try:
+            x, P, x_pred, P_pred = _step_in_pattern(x, P, zs[k])
+            work.append((x, P, x_pred, P_pred))
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     if steps:  # the last step: smoothed = filtered
         x_smooth, P_smooth = work[-1][0], work[-1][1]
         for i in range(6):
@@ -428,9 +454,12 @@ def run(zs, x0, P0):
         for i in range(36):
             Ps[steps - 1, i] = P_smooth[i]
     for k in range(steps - 2, -1, -1):
-        x_smooth, P_smooth = _backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
-        for i in range(6):
-            xs[k, i] = x_smooth[i]
-        for i in range(36):
-            Ps[k, i] = P_smooth[i]
+        try:
+            x_smooth, P_smooth = _backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
+            for i in range(6):
+                xs[k, i] = x_smooth[i]
+            for i in range(36):
+                Ps[k, i] = P_smooth[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 6, 6) + track)

@@ -10,17 +10,19 @@
  * m: 3 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void mpt3d_a_sslf_step(x[6], z[3], x_new[6] out)
- *     void mpt3d_a_sslf_run(steps, z[steps*3], x0[6], xs[steps*6] out)
- *     void mpt3d_a_sslf_run_tracks(steps, tracks, z[steps*3], x0[6], xs[steps*6] out)
+ *     int mpt3d_a_sslf_step(x[6], z[3], x_new[6] out)
+ *     int mpt3d_a_sslf_run(steps, z[steps*3], x0[6], xs[steps*6] out)
+ *     int mpt3d_a_sslf_run_tracks(steps, tracks, z[steps*3], x0[6], xs[steps*6] out)
  *     many tracks: mpt3d_a_sslf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 0, calls 0 (flops 30, instructions 18)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter sslf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 3, calls 0 (flops 30, instructions 21)
  * A: (6, 6) constants baked into the code
  * B: (6, 3) constants baked into the code
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 0, calls 0 (flops 72, instructions 42)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 6, calls 0 (flops 72, instructions 48)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["mpt3d_a_sslf_step","step",false,false,[["x",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_sslf_run","run",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]],["mpt3d_a_sslf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["mpt3d_a_sslf_step","step",true,false,[["x",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_sslf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]],["mpt3d_a_sslf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sslf takes no absent measurements)",[]]],"present":{"1":["z",["zx","zy","zz"]]}}
  */
 #ifndef DERIVE_mpt3d_a_sslf_H
 #define DERIVE_mpt3d_a_sslf_H
@@ -47,13 +49,19 @@
 #define mpt3d_a_sslf_M 3
 #define mpt3d_a_sslf_NP 0
 
+/* the statuses listed above, by name (the functions return them as int) */
+enum mpt3d_a_sslf_status {
+    mpt3d_a_sslf_STATUS_OK = 0,
+    mpt3d_a_sslf_STATUS_STEP_MEASUREMENT_NAN_1 = 1
+};
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void mpt3d_a_sslf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
-void mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *xs);
-void mpt3d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
+int mpt3d_a_sslf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
+int mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *xs);
+int mpt3d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

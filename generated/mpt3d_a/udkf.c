@@ -29,22 +29,23 @@
  *     step 10: innovation variance 3 of a scalar update is not positive (D or R not positive)
  *     step 11: innovation variance 4 of a scalar update is not positive (D or R not positive)
  *     step 12: innovation variance 5 of a scalar update is not positive (D or R not positive)
- *     step 13: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 14: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
- *     enter 15: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
- *     enter 16: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
- *     enter 17: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 18: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- *     store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 12, mul 27, div 9, sqrt 0, fma 24, neg 0, cmp 27, select 3, calls 0 (flops 117, instructions 123)
+ *     step 13: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     step 14: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
+ *     enter 15: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
+ *     enter 16: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
+ *     enter 17: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+ *     enter 18: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 19: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 20: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 21: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ *     store 22: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 12, mul 27, div 9, sqrt 0, fma 24, neg 0, cmp 30, select 3, calls 0 (flops 117, instructions 126)
  * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 0, mul 0, div 3, sqrt 0, fma 3, neg 0, cmp 21, select 3, calls 0 (flops 15, instructions 36)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 12, calls 0 (flops 9, instructions 18)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["mpt3d_a_udkf_step","step",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["U_new",[6,6],true,false,false],["D_new",[6],true,false,false]]],["mpt3d_a_udkf_enter","enter",true,false,[["x0",[6],false,false,false],["P0",[6,6],false,false,false],["x",[6],true,false,false],["U",[6,6],true,false,false],["D",[6],true,false,false]]],["mpt3d_a_udkf_store","store",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_udkf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",5,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",6,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",7,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",9,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",10,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",11,"innovation variance 4 of a scalar update is not positive (D or R not positive)",[]],["step",12,"innovation variance 5 of a scalar update is not positive (D or R not positive)",[]],["step",13,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["enter",14,"P is not positive semidefinite: pivot 5 of its UD factorisation is negative",[]],["enter",15,"P is not positive semidefinite: pivot 4 of its UD factorisation is negative",[]],["enter",16,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",17,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",18,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",19,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",20,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["store",21,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_udkf_step","step",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["U_new",[6,6],true,false,false],["D_new",[6],true,false,false]]],["mpt3d_a_udkf_enter","enter",true,false,[["x0",[6],false,false,false],["P0",[6,6],false,false,false],["x",[6],true,false,false],["U",[6,6],true,false,false],["D",[6],true,false,false]]],["mpt3d_a_udkf_store","store",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_udkf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",5,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",6,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",7,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",9,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",10,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",11,"innovation variance 4 of a scalar update is not positive (D or R not positive)",[]],["step",12,"innovation variance 5 of a scalar update is not positive (D or R not positive)",[]],["step",13,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["step",14,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["enter",15,"P is not positive semidefinite: pivot 5 of its UD factorisation is negative",[]],["enter",16,"P is not positive semidefinite: pivot 4 of its UD factorisation is negative",[]],["enter",17,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",18,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",19,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",20,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",21,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["store",22,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]],"present":{"13":["z",["zx","zy","zz"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -210,6 +211,9 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t87 = t80*t86;
     const double t88 = DERIVE_FMA(t85, t87, t38);
     const double t89 = DERIVE_FMA(t74, t87, x[5 * s]);
+    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
+        status = 13; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t54;
     x_new[1 * s] = t55;
     x_new[2 * s] = t71;
@@ -264,40 +268,40 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
 int mpt3d_a_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
 {
     if (!(U[2] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[3] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[4] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[5] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[8] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[9] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[10] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[11] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[16] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[17] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[22] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(U[23] == 0.0)) {
-        return 13; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     return mpt3d_a_udkf_step_body(x, U, D, z, x_new, U_new, D_new, 1);
 }
@@ -305,73 +309,73 @@ int mpt3d_a_udkf_step(const double *restrict x, const double *restrict U, const 
 int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[2] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[4] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[8] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[9] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[10] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[11] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[16] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[17] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[22] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(P0[23] == 0.0)) {
-        return 20; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[35];
     if (!(t0 > 0.0)) {
-        return 14; /* P is not positive semidefinite: pivot 5 of its UD factorisation is negative */
+        return 15; /* P is not positive semidefinite: pivot 5 of its UD factorisation is negative */
     }
     const double t1 = ((P0[35] <= 0.0) ? 1.0 : P0[35]);
     const double t2 = P0[29]/t1;
     const double t3 = DERIVE_FNMA(P0[29], t2, P0[28]);
     const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
-        return 15; /* P is not positive semidefinite: pivot 4 of its UD factorisation is negative */
+        return 16; /* P is not positive semidefinite: pivot 4 of its UD factorisation is negative */
     }
     const double t5 = 2.2250738585072014e-308 + P0[21];
     if (!(t5 > 0.0)) {
-        return 16; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
+        return 17; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
     }
     const double t6 = ((P0[21] <= 0.0) ? 1.0 : P0[21]);
     const double t7 = P0[15]/t6;
     const double t8 = DERIVE_FNMA(P0[15], t7, P0[14]);
     const double t9 = 2.2250738585072014e-308 + t8;
     if (!(t9 > 0.0)) {
-        return 17; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 18; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
     const double t10 = 2.2250738585072014e-308 + P0[7];
     if (!(t10 > 0.0)) {
-        return 18; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 19; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t11 = ((P0[7] <= 0.0) ? 1.0 : P0[7]);
     const double t12 = P0[1]/t11;
     const double t13 = DERIVE_FNMA(P0[1], t12, P0[0]);
     const double t14 = 2.2250738585072014e-308 + t13;
     if (!(t14 > 0.0)) {
-        return 19; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 20; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -428,40 +432,40 @@ int mpt3d_a_udkf_store(const double *restrict x, const double *restrict U, const
 {
     (void)x;
     if (!(U[2] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[3] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[4] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[5] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[8] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[9] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[10] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[11] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[16] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[17] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[22] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     if (!(U[23] == 0.0)) {
-        return 21; /* outside P's pattern */
+        return 22; /* outside P's pattern */
     }
     const double t0 = D[1]*U[1];
     const double t1 = D[3]*U[15];

@@ -29,16 +29,17 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 10: innovation variance 3 of a scalar update is not positive (D or R not positive)
     step 11: innovation variance 4 of a scalar update is not positive (D or R not positive)
     step 12: innovation variance 5 of a scalar update is not positive (D or R not positive)
-    step 13: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
-    enter 14: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
-    enter 15: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
-    enter 16: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
-    enter 17: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 18: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-    store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 42, sub 15, mul 51, div 9, sqrt 0, fma 0, neg 0, cmp 27, select 3, calls 0 (flops 117, instructions 147)
+    step 13: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    step 14: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
+    enter 15: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
+    enter 16: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
+    enter 17: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+    enter 18: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 19: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 20: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 21: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+    store 22: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 42, sub 15, mul 51, div 9, sqrt 0, fma 0, neg 0, cmp 30, select 3, calls 0 (flops 117, instructions 150)
 operations per call of enter (Python): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 21, select 3, calls 0 (flops 15, instructions 39)
 operations per call of store (Python): add 3, sub 0, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 9, instructions 21)
 P0 pattern declared: zero
@@ -115,6 +116,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -277,6 +299,7 @@ def _step_in_pattern(x, U, D, z):
     t87 = t80*t86
     t88 = t38 + t85*t87
     t89 = x[5] + t74*t87
+    _require_present((z[0], z[1], z[2],), ('zx (z[0])', 'zy (z[1])', 'zz (z[2])'), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t54, t55, t71, t72, t88, t89]
     U_new = [
         1.0, t50, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t67, 0.0,
@@ -401,10 +424,13 @@ def run(zs, x0, P0):
     Ps = np.empty((steps, 36) + track)
     x, U, D = _enter(x0, P0.reshape((36,) + P0.shape[2:]))
     for k in range(steps):
-        x, U, D = _step_in_pattern(x, U, D, zs[k])
-        for i in range(6):
-            xs[k, i] = x[i]
-        Ps_k = _store(x, U, D)
-        for i in range(36):
-            Ps[k, i] = Ps_k[i]
+        try:
+            x, U, D = _step_in_pattern(x, U, D, zs[k])
+            for i in range(6):
+                xs[k, i] = x[i]
+            Ps_k = _store(x, U, D)
+            for i in range(36):
+                Ps[k, i] = Ps_k[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 6, 6) + track)

@@ -10,16 +10,18 @@
  * m: 1 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void mpt3d_b_jssklf_step(x[2], z[1], x_new[2] out)
- *     void mpt3d_b_jssklf_run(steps, z[steps*1], x0[2], xs[steps*2] out)
- *     void mpt3d_b_jssklf_run_tracks(steps, tracks, z[steps*1], x0[2], xs[steps*2] out)
+ *     int mpt3d_b_jssklf_step(x[2], z[1], x_new[2] out)
+ *     int mpt3d_b_jssklf_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ *     int mpt3d_b_jssklf_run_tracks(steps, tracks, z[steps*1], x0[2], xs[steps*2] out)
  *     many tracks: mpt3d_b_jssklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
+ * status (C return value; Python raises NumericalError): 0 success
+ *     step 1: measurement is NaN (filter jssklf takes no absent measurements)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 10, instructions 7)
  * A = [[ 0.634641189261532  ,  0.2692823785230639 ], [-0.20683480863417478,  0.5863303827316504 ]]
  * B = [[0.36535881073846804], [0.20683480863417478]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
- * derive-interface: {"functions":[["mpt3d_b_jssklf_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["mpt3d_b_jssklf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["mpt3d_b_jssklf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 24, instructions 16)
+ * derive-interface: {"functions":[["mpt3d_b_jssklf_step","step",true,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["mpt3d_b_jssklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["mpt3d_b_jssklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter jssklf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
  */
 #ifndef DERIVE_mpt3d_b_jssklf_H
 #define DERIVE_mpt3d_b_jssklf_H
@@ -46,13 +48,19 @@
 #define mpt3d_b_jssklf_M 1
 #define mpt3d_b_jssklf_NP 0
 
+/* the statuses listed above, by name (the functions return them as int) */
+enum mpt3d_b_jssklf_status {
+    mpt3d_b_jssklf_STATUS_OK = 0,
+    mpt3d_b_jssklf_STATUS_STEP_MEASUREMENT_NAN_1 = 1
+};
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void mpt3d_b_jssklf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
-void mpt3d_b_jssklf_run(size_t steps, const double *z, const double *x0, double *xs);
-void mpt3d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
+int mpt3d_b_jssklf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
+int mpt3d_b_jssklf_run(size_t steps, const double *z, const double *x0, double *xs);
+int mpt3d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

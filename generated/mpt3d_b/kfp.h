@@ -15,10 +15,11 @@
  * symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 12, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 25, instructions 21)
+ *     step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 12, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 2, calls 0 (flops 25, instructions 22)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * derive-interface: {"functions":[["mpt3d_b_kfp_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false],["x_pred",[2],true,false,false],["P_pred",[2,2],true,false,false]]],["mpt3d_b_kfp_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false],["x_preds",["steps",2],true,false,false],["P_preds",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["mpt3d_b_kfp_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false],["x_pred",[2],true,false,false],["P_pred",[2,2],true,false,false]]],["mpt3d_b_kfp_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false],["x_preds",["steps",2],true,false,false],["P_preds",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]]],"present":{"2":["z",["z"]]}}
  */
 #ifndef DERIVE_mpt3d_b_kfp_H
 #define DERIVE_mpt3d_b_kfp_H
@@ -48,7 +49,8 @@
 /* the statuses listed above, by name (the functions return them as int) */
 enum mpt3d_b_kfp_status {
     mpt3d_b_kfp_STATUS_OK = 0,
-    mpt3d_b_kfp_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1
+    mpt3d_b_kfp_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
+    mpt3d_b_kfp_STATUS_STEP_MEASUREMENT_NAN_2 = 2
 };
 
 #ifdef __cplusplus

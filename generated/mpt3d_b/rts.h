@@ -17,14 +17,15 @@
  * symmetric in backward: P, P_pred, P_smooth_next, P_smooth (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 2: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 3: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 12, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 25, instructions 21)
+ *     step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     backward 3: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 4: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 12, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 2, calls 0 (flops 25, instructions 22)
  * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 5, mul 10, div 5, sqrt 0, fma 14, neg 0, cmp 2, calls 0 (flops 55, instructions 43)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * work: steps * 12 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["mpt3d_b_rts_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false],["x_pred",[2],true,false,false],["P_pred",[2,2],true,false,false]]],["mpt3d_b_rts_backward","backward",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["x_pred",[2],false,false,false],["P_pred",[2,2],false,false,false],["x_smooth_next",[2],false,false,false],["P_smooth_next",[2,2],false,false,false],["x_smooth",[2],true,false,false],["P_smooth",[2,2],true,false,false]]],["mpt3d_b_rts_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,false,false],["work",["steps",12],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",2,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",3,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["mpt3d_b_rts_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false],["x_pred",[2],true,false,false],["P_pred",[2,2],true,false,false]]],["mpt3d_b_rts_backward","backward",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["x_pred",[2],false,false,false],["P_pred",[2,2],false,false,false],["x_smooth_next",[2],false,false,false],["P_smooth_next",[2,2],false,false,false],["x_smooth",[2],true,false,false],["P_smooth",[2,2],true,false,false]]],["mpt3d_b_rts_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,false,false],["work",["steps",12],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["backward",3,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",4,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]]],"present":{"2":["z",["z"]]}}
  */
 #ifndef DERIVE_mpt3d_b_rts_H
 #define DERIVE_mpt3d_b_rts_H
@@ -55,8 +56,9 @@
 enum mpt3d_b_rts_status {
     mpt3d_b_rts_STATUS_OK = 0,
     mpt3d_b_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
-    mpt3d_b_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_2 = 2,
-    mpt3d_b_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_3 = 3
+    mpt3d_b_rts_STATUS_STEP_MEASUREMENT_NAN_2 = 2,
+    mpt3d_b_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_3 = 3,
+    mpt3d_b_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_4 = 4
 };
 
 #ifdef __cplusplus

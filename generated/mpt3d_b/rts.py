@@ -17,9 +17,10 @@ symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: writt
 symmetric in backward: P, P_pred, P_smooth_next, P_smooth (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 2: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 3: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 14, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 25, instructions 26)
+    step 2: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+    backward 3: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    backward 4: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+operations per call of step (Python): add 14, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 25, instructions 27)
 operations per call of backward (Python): add 16, sub 10, mul 24, div 5, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 55, instructions 57)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -57,6 +58,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -141,6 +163,7 @@ def _step(x, P, z):
     t22 = t4 - t19
     t23 = t5 - t20
     t24 = t6 - t21
+    _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (give the option missing for a NaN to mean an absent measurement)')
     x_new = [t17, t18]
     P_new = [t22, t23, t23, t24]
     x_pred = [t0, x[1]]
@@ -245,8 +268,11 @@ def run(zs, x0, P0):
     P = P0.reshape((4,) + P0.shape[2:])
     work = []  # per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1)
     for k in range(steps):
-        x, P, x_pred, P_pred = _step(x, P, zs[k])
-        work.append((x, P, x_pred, P_pred))
+        try:
+            x, P, x_pred, P_pred = _step(x, P, zs[k])
+            work.append((x, P, x_pred, P_pred))
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     if steps:  # the last step: smoothed = filtered
         x_smooth, P_smooth = work[-1][0], work[-1][1]
         for i in range(2):
@@ -254,9 +280,12 @@ def run(zs, x0, P0):
         for i in range(4):
             Ps[steps - 1, i] = P_smooth[i]
     for k in range(steps - 2, -1, -1):
-        x_smooth, P_smooth = _backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
-        for i in range(2):
-            xs[k, i] = x_smooth[i]
-        for i in range(4):
-            Ps[k, i] = P_smooth[i]
+        try:
+            x_smooth, P_smooth = _backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
+            for i in range(2):
+                xs[k, i] = x_smooth[i]
+            for i in range(4):
+                Ps[k, i] = P_smooth[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 2, 2) + track)

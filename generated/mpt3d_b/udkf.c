@@ -21,15 +21,16 @@
  *     step 2: P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative
  *     step 3: innovation variance 0 of a scalar update is not positive (D or R not positive)
  *     step 4: innovation variance 1 of a scalar update is not positive (D or R not positive)
- *     enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 4, mul 9, div 3, sqrt 0, fma 8, neg 0, cmp 5, select 1, calls 0 (flops 39, instructions 37)
+ *     step 5: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     enter 6: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 7: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 4, mul 9, div 3, sqrt 0, fma 8, neg 0, cmp 6, select 1, calls 0 (flops 39, instructions 38)
  * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 0, div 1, sqrt 0, fma 1, neg 0, cmp 3, select 1, calls 0 (flops 5, instructions 8)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 1, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 3, instructions 2)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["mpt3d_b_udkf_step","step",true,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["U_new",[2,2],true,false,false],["D_new",[2],true,false,false]]],["mpt3d_b_udkf_enter","enter",true,false,[["x0",[2],false,false,false],["P0",[2,2],false,false,false],["x",[2],true,false,false],["U",[2,2],true,false,false],["D",[2],true,false,false]]],["mpt3d_b_udkf_store","store",false,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["P_new",[2,2],true,false,false]]],["mpt3d_b_udkf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",3,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",4,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["enter",5,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",6,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
+ * derive-interface: {"functions":[["mpt3d_b_udkf_step","step",true,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["U_new",[2,2],true,false,false],["D_new",[2],true,false,false]]],["mpt3d_b_udkf_enter","enter",true,false,[["x0",[2],false,false,false],["P0",[2,2],false,false,false],["x",[2],true,false,false],["U",[2,2],true,false,false],["D",[2],true,false,false]]],["mpt3d_b_udkf_store","store",false,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["P_new",[2,2],true,false,false]]],["mpt3d_b_udkf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",3,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",4,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",5,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["enter",6,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",7,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]],"present":{"5":["z",["z"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -111,6 +112,9 @@ DERIVE_INLINE int mpt3d_b_udkf_step_body(const double *restrict x, const double 
     const double t27 = t20*t26;
     const double t28 = DERIVE_FMA(t25, t27, t12);
     const double t29 = DERIVE_FMA(t14, t27, x[1 * s]);
+    if (!((z[0] == z[0])) && !status) {
+        status = 5; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
+    }
     x_new[0] = t28;
     x_new[1 * s] = t29;
     U_new[0] = 1.0;
@@ -131,14 +135,14 @@ int mpt3d_b_udkf_enter(const double *restrict x0, const double *restrict P0, dou
 {
     const double t0 = 2.2250738585072014e-308 + P0[3];
     if (!(t0 > 0.0)) {
-        return 5; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 6; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t1 = ((P0[3] <= 0.0) ? 1.0 : P0[3]);
     const double t2 = P0[1]/t1;
     const double t3 = DERIVE_FNMA(P0[1], t2, P0[0]);
     const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
-        return 6; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 7; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];

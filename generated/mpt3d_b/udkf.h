@@ -21,15 +21,16 @@
  *     step 2: P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative
  *     step 3: innovation variance 0 of a scalar update is not positive (D or R not positive)
  *     step 4: innovation variance 1 of a scalar update is not positive (D or R not positive)
- *     enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 4, mul 9, div 3, sqrt 0, fma 8, neg 0, cmp 5, select 1, calls 0 (flops 39, instructions 37)
+ *     step 5: measurement is NaN (give the option missing for a NaN to mean an absent measurement)
+ *     enter 6: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 7: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 4, mul 9, div 3, sqrt 0, fma 8, neg 0, cmp 6, select 1, calls 0 (flops 39, instructions 38)
  * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 0, div 1, sqrt 0, fma 1, neg 0, cmp 3, select 1, calls 0 (flops 5, instructions 8)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 1, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 3, instructions 2)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["mpt3d_b_udkf_step","step",true,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["U_new",[2,2],true,false,false],["D_new",[2],true,false,false]]],["mpt3d_b_udkf_enter","enter",true,false,[["x0",[2],false,false,false],["P0",[2,2],false,false,false],["x",[2],true,false,false],["U",[2,2],true,false,false],["D",[2],true,false,false]]],["mpt3d_b_udkf_store","store",false,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["P_new",[2,2],true,false,false]]],["mpt3d_b_udkf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",3,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",4,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["enter",5,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",6,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
+ * derive-interface: {"functions":[["mpt3d_b_udkf_step","step",true,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["U_new",[2,2],true,false,false],["D_new",[2],true,false,false]]],["mpt3d_b_udkf_enter","enter",true,false,[["x0",[2],false,false,false],["P0",[2,2],false,false,false],["x",[2],true,false,false],["U",[2,2],true,false,false],["D",[2],true,false,false]]],["mpt3d_b_udkf_store","store",false,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["P_new",[2,2],true,false,false]]],["mpt3d_b_udkf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",3,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",4,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",5,"measurement is NaN (give the option missing for a NaN to mean an absent measurement)",[]],["enter",6,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",7,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]],"present":{"5":["z",["z"]]}}
  */
 #ifndef DERIVE_mpt3d_b_udkf_H
 #define DERIVE_mpt3d_b_udkf_H
@@ -63,8 +64,9 @@ enum mpt3d_b_udkf_status {
     mpt3d_b_udkf_STATUS_STEP_P_K_1_K_NOT_POSITIVE_SEMIDEFINITE_2 = 2,
     mpt3d_b_udkf_STATUS_STEP_INNOVATION_VARIANCE_0_SCALAR_UPDATE_NOT_POSITIVE_3 = 3,
     mpt3d_b_udkf_STATUS_STEP_INNOVATION_VARIANCE_1_SCALAR_UPDATE_NOT_POSITIVE_4 = 4,
-    mpt3d_b_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_5 = 5,
-    mpt3d_b_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_6 = 6
+    mpt3d_b_udkf_STATUS_STEP_MEASUREMENT_NAN_5 = 5,
+    mpt3d_b_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_6 = 6,
+    mpt3d_b_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_7 = 7
 };
 
 #ifdef __cplusplus

@@ -3,9 +3,10 @@
 The same equations as derive.apps.ins.reference (SPEC.md §8), built from CasADi SX
 expressions with CasADi's symbolic Jacobians and inverse; P is read symmetric (entry (i, j)
 is the symbol of (min(i, j), max(i, j)), derive's upper-triangle read), and the quaternion
-is renormalised after each update. ``casadi.CodeGenerator`` emits one C file holding the
-three functions ``predict(x, P, u, dt)`` and ``update_gnss(x, P, z)``,
-``update_baro(x, P, z)``, each returning (x_new, P_new).
+is renormalised after each update and at the start of predict (as derive's predict).
+``casadi.CodeGenerator`` emits one C file holding the three functions ``predict(x, P, u,
+dt)``, ``update_gnss(x, P, z)`` and ``update_baro(x, P, z)``, each returning (x_new,
+P_new).
 """
 
 from __future__ import annotations
@@ -54,7 +55,11 @@ def _predict(ca):
     walk = ca.diag(ca.vertcat(ca.DM.zeros(10), c.SIGMA_GYRO_BIAS ** 2 * dt * ca.DM.ones(3),
                               c.SIGMA_ACCEL_BIAS ** 2 * dt * ca.DM.ones(3)))
     P_new = ca.mtimes([F, P, F.T]) + ca.mtimes([Fu, Qu, Fu.T]) + walk
-    return ca.Function("predict", [x, P_in, u, dt], [x_new, P_new])
+    at = ca.Function("at", [x, P_in, u, dt], [x_new, P_new])
+    # f, F, Fu and Q taken at x with q renormalised, as derive's predict (which uses |q| = 1)
+    x_in = ca.SX.sym("x", N)
+    unit = ca.vertcat(x_in[0:4] / ca.norm_2(x_in[0:4]), x_in[4:])
+    return ca.Function("predict", [x_in, P_in, u, dt], at(unit, P_in, u, dt))
 
 
 def _update(ca, name: str, rows: tuple[int, ...], variances, sign: float = 1.0):

@@ -3,7 +3,7 @@ INS/GNSS application reads them: noise, gravity, start, flight plan and true bia
 
 They are SPEC's values, typed once here for the reference EKF and the simulation; the
 catalog model file (derive/catalog/ins_gnss.toml) states the same numbers for derive, and
-tests/test_nav_ins_catalog.py checks that the two agree.
+tests/navigation/test_nav_ins_catalog.py checks that the two agree.
 """
 
 from __future__ import annotations

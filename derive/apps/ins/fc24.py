@@ -45,6 +45,7 @@ from derive.apps.ins.reference import (
     left_matrix,
     right_matrix,
     rotated_jacobian,
+    unit_quaternion,
     update_with,
 )
 
@@ -131,6 +132,9 @@ def jacobians(x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, np.n
 
 
 def predict(x: np.ndarray, P: np.ndarray, u: np.ndarray, dt: float):
+    """One EKF prediction from x with q renormalised (as the generated predict, which
+    uses |q| = 1 in its noise)."""
+    x = unit_quaternion(x)
     jac, jac_u = jacobians(x, u, dt)
     return f(x, u, dt), jac @ P @ jac.T + jac_u @ input_noise(dt) @ jac_u.T + np.diag(walk(dt))
 

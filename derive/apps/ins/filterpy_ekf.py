@@ -31,6 +31,7 @@ def make_filter(x: np.ndarray, P: np.ndarray):
             self.x = ref.f(self.x.ravel(), u_k, dt).reshape(-1, 1)
 
         def predict_step(self, u: np.ndarray, dt: float) -> None:
+            self.x[:4] /= np.linalg.norm(self.x[:4])  # as derive's predict, at a unit q
             state = self.x.ravel()
             self.F, _ = ref.jacobians(state, u, dt)
             self.Q = ref.process_noise(state, u, dt)

@@ -1,6 +1,6 @@
 """A NumPy EKF of the INS/GNSS model written by hand from SPEC.md section 8, independently of
 derive's derivation: the Jacobians below are worked out on paper from the equations (and
-checked against finite differences in tests/test_nav_ins_reference.py), not by sympy.
+checked against finite differences in tests/navigation/test_nav_ins_reference.py), not by sympy.
 
 State x = [q0..q3, vn, ve, vd, pn, pe, pd, bg(3), ba(3)], input u = [ω(3), a(3)], parameter
 dt. Predict: x ← f(x, u), P ← F P Fᵀ + Q(x, u) with F = ∂f/∂x, Fu = ∂f/∂u at (x, u) and
@@ -128,9 +128,18 @@ SENSORS = {
 
 
 def predict(x: np.ndarray, P: np.ndarray, u: np.ndarray, dt: float):
-    """One EKF prediction: (x, P) at the next step."""
+    """One EKF prediction: (x, P) at the next step, from x with q renormalised (the
+    generated predict uses |q| = 1 in its noise, so it renormalises q first)."""
+    x = unit_quaternion(x)
     jac, _ = jacobians(x, u, dt)
     return f(x, u, dt), jac @ P @ jac.T + process_noise(x, u, dt)
+
+
+def unit_quaternion(x: np.ndarray) -> np.ndarray:
+    """x with q divided by its norm."""
+    x = np.array(x, dtype=float)
+    x[:4] /= np.linalg.norm(x[:4])
+    return x
 
 
 def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, sensor: str):

@@ -4,10 +4,12 @@ a benchmark peer: the functions, their generation time and operation counts.
 The functions are the model's own equations (its f, h, Qu, Q and R, the sympy expressions of
 the catalog model) converted to ``symforce.symbolic`` and differentiated, simplified and
 printed by SymForce: predict x' = f(x, u, dt), P' = F P Fᵀ + Fu Qu Fuᵀ + Q(dt) with F and Fu
-SymForce's Jacobians; an update S = H P Hᵀ + R, K = P Hᵀ S⁻¹ (SymForce's symbolic ``inv``:
-the batch update), x' = x + K (z − h(x)), P' = P − K H P, then each unit-norm group of the
-model renormalised. P is symmetric: each entry (i, j) is the symbol of (min(i, j), max(i,
-j)), like derive's upper-triangle read. Each function is emitted by
+SymForce's Jacobians, all taken at x with its unit-norm groups renormalised where derive's
+predict uses their invariant (derive.filters.sensors.unit_norm_noise); an update
+S = H P Hᵀ + R, K = P Hᵀ S⁻¹ (SymForce's symbolic ``inv``: the batch update),
+x' = x + K (z − h(x)), P' = P − K H P, then each unit-norm group of the model renormalised.
+P is symmetric: each entry (i, j) is the symbol of (min(i, j), max(i, j)), like derive's
+upper-triangle read. Each function is emitted by
 ``symforce.codegen.Codegen`` with its C++ backend.
 
 Counts: SymForce's own (the ``// Total ops: N`` its code generator prints), and the count of
@@ -29,7 +31,7 @@ from pathlib import Path
 import sympy
 
 from derive import catalog
-from derive.filters.sensors import program_name
+from derive.filters.sensors import program_name, unit_norm_noise
 from derive.flops import c_function_body, count_c_text
 from derive.trees import OpCount
 
@@ -84,6 +86,8 @@ def model_functions(sf, model) -> dict:
     def to_sf(expr, bind):
         return sf.sympify(expr).subs(bind)
 
+    first = groups if unit_norm_noise(model) else []  # as derive's predict: at unit q
+
     def predict(x, P, u, dt):
         P = _symmetric(sf, P, n)
         bind = {sf.sympify(s): x[i] for i, s in enumerate(states)}
@@ -93,7 +97,16 @@ def model_functions(sf, model) -> dict:
         F, Fu = x_new.jacobian(x), x_new.jacobian(u)
         noise_u = sf.Matrix([[to_sf(e, bind) for e in row] for row in Qu.tolist()])
         noise = sf.Matrix([[to_sf(e, bind) for e in row] for row in Q.tolist()])
-        return x_new, F * P * F.T + Fu * noise_u * Fu.T + noise
+        P_new = F * P * F.T + Fu * noise_u * Fu.T + noise
+        # f, F, Fu and Q taken at x with its groups renormalised
+        stand_in = {x[i]: sf.Symbol(f"unit_{i}") for rows in first for i in rows}
+        unit = {}
+        for rows in first:
+            norm = sf.sqrt(sum(x[i] ** 2 for i in rows))
+            unit |= {stand_in[x[i]]: x[i] / norm for i in rows}
+        if unit:
+            x_new, P_new = (m.subs(stand_in).subs(unit) for m in (x_new, P_new))
+        return x_new, P_new
 
     def update_of(sensor):
         h, R = numeric(sensor.h), numeric(sensor.R)

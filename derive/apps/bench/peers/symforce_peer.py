@@ -56,6 +56,7 @@ import numpy as np
 
 from .... import catalog
 from ....build import cache_dir
+from ....filters.sensors import program_name
 from ....generation import generate_units
 from ....trees import OpCount
 from ...ins import symforce_ekf
@@ -297,6 +298,7 @@ class FunctionResult:
     x86_bytes: dict[str, tuple[int, int]] = field(default_factory=dict)  # build -> (d, s)
     m4f_bytes: dict[str, tuple[int, int]] = field(default_factory=dict)  # level -> (d, s)
     l1i_misses: tuple[float, float] | None = None
+    floor: int | None = None   # the fewest flops any code takes (unit_row_floor), if known
 
     @property
     def label(self) -> str:
@@ -346,7 +348,9 @@ class PeerResult:
         for r in self.functions:
             d, s = r.counted.get("derive"), r.counted.get("symforce")
             row = [r.label, "n/a" if d is None or s is None else
-                   f"{r.derive_flops} / {s.flops} ({r.derive_flops / s.flops:.2f})",
+                   f"{r.derive_flops} / {s.flops} ({r.derive_flops / s.flops:.2f}"
+                   + ("" if r.floor is None else
+                      f"; floor {r.floor}, {r.floor / s.flops:.3f}") + ")",
                    "n/a" if d is None or r.header is None else
                    ("yes" if d == r.header else
                     f"no: counted {d.flops}, header {r.header.flops} (vector lanes)")]
@@ -382,6 +386,9 @@ class PeerResult:
             if r.header is not None and d is not None and d > r.counted["derive"].flops:
                 note += (f" (derive's header count: its vector rows compute every lane of a "
                          f"chunk, its scalar fallback, counted, {r.counted['derive'].flops})")
+            if r.floor is not None and s is not None:
+                note += (f"; no code takes fewer than {r.floor} flops ({r.floor / s.flops:.3f}x "
+                         "SymForce's: docs/performance.md, \"The floor of a unit-row update\")")
             out.append(bar_type(f"{r.label}: flops over SymForce's (one counter)",
                                 None if d is None or s is None else d / s.flops,
                                 FLOPS_BAR, "share", note))
@@ -773,7 +780,8 @@ def run_peer(points: dict[str, tuple[Point, dict]], workdir: Path, calls: int, r
         for function in m.functions:
             r = FunctionResult(m.name, function,
                                header=header_count(
-                                   m.headers["double"].read_text(encoding="utf-8"), function))
+                                   m.headers["double"].read_text(encoding="utf-8"), function),
+                               floor=unit_row_floor(catalog.load(m.name), function))
             result.functions.append(r)
             by_key[(m.name, function)] = r
     sizes_of = {m.name: m.n for m in models}
@@ -831,6 +839,27 @@ def run_peer(points: dict[str, tuple[Point, dict]], workdir: Path, calls: int, r
         result.notes.append(f"Cortex-M4F sizes not measured: {str(exc).splitlines()[0]} "
                             "(Debian: gcc-arm-none-eabi libstdc++-arm-none-eabi-dev)")
     return result
+
+
+def unit_row_floor(model, function: str) -> int | None:
+    """The fewest flops under the counter of any code computing ``function``, an update of
+    one measurement ``h = ±x_j`` of a model whose P is dense (None for any other function):
+    with N = n - 1 states besides j (docs/performance.md, "The floor of a unit-row update"),
+    N (N + 1) for the entries P[a][b] - P[a][j] P[b][j] / s off row j (an fma, or a
+    product and a sum, each its own), n for row j (P[b][j] R / s, one operation each), N
+    for a factor of each diagonal's P[a][j]^2 / s, 2 n for x, 2 for s = P[j][j] + R and
+    nu, and 3 g for each unit-norm group of g states (its g squares and g - 1 sums, a
+    square root and g scalings)."""
+    sensor = next((g for g in model.sensors if program_name(g.name) == function), None)
+    if sensor is None or sensor.h is None or len(sensor.measurements) != 1:
+        return None
+    h = model.subs(sensor.h)[0]
+    states = list(model.state_symbols)
+    if not (h in states or -h in states) or model.subs(sensor.R)[0, 0].free_symbols:
+        return None
+    n = model.n
+    groups = sum(3 * len(group) for group in model.unit_norm)
+    return (n - 1) * n + n + (n - 1) + 2 * n + 2 + groups
 
 
 def header_count(text: str, function: str) -> OpCount | None:
