@@ -50,20 +50,31 @@ def _module(cflags: tuple[str, ...]):
         ["-std=c99", *cflags])
 
 
+#: Each repeat's iterations are timed in this many windows, the kinds taking turns in
+#: each: under a load average of 6.5 on the 2 cores, whole repeats (a few ms each) read
+#: fma 1.86 and div 7.61 ns at their fastest, windows of a fiftieth 1.0 and 3.3 ns, the
+#: figures of a quiet moment.
+WINDOWS = 50
+
+
 def measure_latencies(cflags: tuple[str, ...], repeats: int = 7,
                       scale: float = 1.0) -> dict[str, float]:
-    """Seconds per dependent operation, per kind (the minimum over ``repeats``).
+    """Seconds per dependent operation, per kind (the minimum over ``repeats`` times
+    :data:`WINDOWS` short windows).
 
-    The kinds take turns within each repeat, so that a moment of load on a shared
+    The kinds take turns within each window, so that a moment of load on a shared
     machine slows every kind's probe alike rather than one kind's: the ratios between
-    kinds, which the chain bounds of two schedules compare, come from the same moments."""
+    kinds, which the chain bounds of two schedules compare, come from the same moments;
+    and a short window is likelier than a long one to fall between the other jobs' turns,
+    so the least is the operation's latency, not the load's."""
     lib = _module(cflags)
-    probes = {kind: (getattr(lib, f"derive_probe_{kind}"), max(1, int(iterations * scale)))
+    probes = {kind: (getattr(lib, f"derive_probe_{kind}"),
+                     max(1, int(iterations * scale) // WINDOWS))
               for kind, (_, iterations) in PROBES.items()}
     for fn, n in probes.values():
-        fn(n // 10 + 1, 1.0, 0.999999, 1e-9)          # warm up
+        fn(n + 1, 1.0, 0.999999, 1e-9)                # warm up
     best = dict.fromkeys(probes, float("inf"))
-    for _ in range(repeats):
+    for _ in range(repeats * WINDOWS):
         for kind, (fn, n) in probes.items():
             start = time.perf_counter()
             fn(n, 1.0, 0.999999, 1e-9)
