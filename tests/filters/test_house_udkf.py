@@ -42,8 +42,8 @@ def test_udkf_is_registered_with_its_carried_state_and_options():
     spec = FILTERS["udkf"]
     assert spec.run_kind == "timevarying" and spec.model_kind == "linear"
     # no run_tracks: U, D
-    assert taken_by("udkf") == ["P0_pattern", "missing", "loglik", "start", "prefix",
-                                "precision", "run"]
+    assert taken_by("udkf") == ["P0_pattern", "missing", "loglik", "gradient", "start",
+                                "prefix", "precision", "run"]
     for name in LINEAR:
         assert "udkf" in available(catalog.load(name)), name
 
