@@ -314,14 +314,10 @@ def derive_unit(model, spec, options):
                             model.f_inputs, facts)
 
 
-def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, Rs=None,
-                  trace: list | None = None):
-    """The error-state reference (derive.reference.sensors.run with an injection and a
-    reset) for ``model`` at numbers (p as an argument, one row per step; ``Rs``: the
-    per-step R of the sensors whose R is given per call), from x0 and P0 (default: the
-    model's): the model's sympy Jacobians ∂f/∂x, ∂f/∂u, ∂h/∂x at numbers, taken into the
-    tangent space by derive.manifolds' numeric N and M; injection by its numeric ⊞; the
-    reset (option ``reset``) by Solà's G (derive.reference.eskf)."""
+def reference_predict(model):
+    """``predict(x, P, u, p) -> (x(k/k-1), P(k/k-1))`` of the error-state reference at
+    numbers (u: all the model's inputs; p: its parameters): the model's sympy ∂f/∂x and
+    ∂f/∂u taken into the tangent space by derive.manifolds' numeric N and M."""
     layout = model.layout
     params = list(model.parameters)
     X, U = list(model.state_symbols), list(model.inputs)
@@ -339,6 +335,21 @@ def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, 
         return (mf.project_numeric(layout, y),
                 A @ P @ A.T + Q(p) + (G @ Qu(p) @ G.T if U else 0.0))
 
+    return predict
+
+
+def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, Rs=None,
+                  trace: list | None = None):
+    """The error-state reference (derive.reference.sensors.run with an injection and a
+    reset) for ``model`` at numbers (p as an argument, one row per step; ``Rs``: the
+    per-step R of the sensors whose R is given per call), from x0 and P0 (default: the
+    model's): the model's sympy Jacobians ∂f/∂x, ∂f/∂u, ∂h/∂x at numbers, taken into the
+    tangent space by derive.manifolds' numeric N and M; injection by its numeric ⊞; the
+    reset (option ``reset``) by Solà's G (derive.reference.eskf)."""
+    layout = model.layout
+    params = list(model.parameters)
+    X = list(model.state_symbols)
+    predict = reference_predict(model)
     thresholds = gate_thresholds(sensor_groups(model), options)
     names = [u.name for u in model.inputs]
     sensors = []
@@ -392,4 +403,4 @@ SPECS = (FilterSpec(
            "c": "Run the error-state EKF over steps steps; Ps may be NULL."}),)
 
 __all__ = ["SPECS", "EskfOptions", "derive_unit", "error_dynamics", "measurement_jacobian",
-           "reset_jacobian"]
+           "reference_predict", "reset_jacobian"]
