@@ -28,7 +28,7 @@
  *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 40, sub 36, mul 187, div 2, sqrt 1, fma 778, neg 20, cmp 1, calls 0 (flops 1822, instructions 1065)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 40, sub 36, mul 190, div 2, sqrt 1, fma 814, neg 20, cmp 1, calls 0 (flops 1897, instructions 1104)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 18, mul 119, div 7, sqrt 1, fma 810, neg 0, cmp 6, calls 0 (flops 1776, instructions 972)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 26, div 2, sqrt 1, fma 147, neg 0, cmp 1, calls 0 (flops 325, instructions 179)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)

@@ -36,7 +36,7 @@
  *     update_mag 10: S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
  *     update_airspeed 12: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 48, sub 30, mul 213, div 2, sqrt 1, fma 1069, neg 30, cmp 1, calls 0 (flops 2432, instructions 1394)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 48, sub 30, mul 216, div 2, sqrt 1, fma 1105, neg 30, cmp 1, calls 0 (flops 2507, instructions 1433)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 26, mul 175, div 7, sqrt 1, fma 1786, neg 0, cmp 6, calls 0 (flops 3792, instructions 2012)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 34, div 2, sqrt 1, fma 311, neg 0, cmp 1, calls 0 (flops 661, instructions 351)
  * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 8, sub 29, mul 128, div 4, sqrt 1, fma 1288, neg 4, cmp 3, calls 0 (flops 2746, instructions 1465)
