@@ -32,7 +32,7 @@ from derive.modelfile import loads_model
 from derive.pipeline import load_generated
 from derive.program import Port, Program
 from derive.row_program import RowBuilder
-from derive.rows import LaneSum
+from derive.rows import VECTOR_LANES, LaneSum, chunk_bounds
 from derive.statements import Temporary
 
 VECTOR, SCALAR = {"rows": "vector"}, {"rows": "scalar"}
@@ -367,3 +367,18 @@ def test_a_negative_dt_is_refused_by_the_vector_predict_naming_step_and_value():
                            else r"parameter dt must be nonnegative, got -0\.25"):
             module.run(gnss, baro, us, x, P, rows)
 
+
+
+@pytest.mark.parametrize("length", [0, 3, 4, 15, 23, 24])
+def test_chunks_cover_the_row_with_a_last_one_that_overlaps(length):
+    """Every chunk is 4 lanes wide (a row shorter than that: one chunk), they cover the row,
+    and only the last overlaps the one before it, ending at the row's end."""
+    bounds = chunk_bounds(length, VECTOR_LANES)
+    covered = sorted({lane for start, stop in bounds for lane in range(start, stop)})
+    assert covered == list(range(length))
+    if length >= VECTOR_LANES:
+        assert all(stop - start == VECTOR_LANES for start, stop in bounds)
+        assert bounds[-1][1] == length
+        assert all(a[1] == b[0] for a, b in zip(bounds[:-2], bounds[1:-1]))
+    else:
+        assert bounds == ([(0, length)] if length else [])
