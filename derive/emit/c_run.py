@@ -38,6 +38,13 @@ def call_lines(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[s
             "}"]
 
 
+def comment(note: str) -> list[str]:
+    """A C comment: ``note``'s lines, the later ones under the first's text."""
+    lines = note.split("\n")
+    return [("/* " if i == 0 else "   ") + line + (" */" if i == len(lines) - 1 else "")
+            for i, line in enumerate(lines)]
+
+
 def _indent(lines: list[str], by: str = "    ") -> list[str]:
     return [by + line for line in lines]
 
@@ -99,12 +106,6 @@ class _Printer:
             names[port.name] = name
             before = None if isinstance(source, Carried) else (name, row)
         return lines, names
-
-    def note(self, note: str) -> list[str]:
-        """A comment: ``note``'s lines, the later ones under the first's text."""
-        lines = note.split("\n")
-        return [("/* " if i == 0 else "   ") + line + (" */" if i == len(lines) - 1 else "")
-                for i, line in enumerate(lines)]
 
     def subset(self, program: str) -> str:
         """The local array of the columns of u a program takes (named for the program: a
@@ -178,7 +179,7 @@ class _Printer:
                           f"    {self.element(node.target)} = {self.element(node.source)};",
                           "}"]
             elif isinstance(node, AnySteps):
-                lines += self.note(node.note) + ["if (steps) {"] + _indent(
+                lines += comment(node.note) + ["if (steps) {"] + _indent(
                     self.nodes(node.body)) + ["}"]
             elif isinstance(node, Steps):
                 lines += self.steps(node)
@@ -187,7 +188,7 @@ class _Printer:
         return lines
 
     def steps(self, node: Steps) -> list[str]:
-        head = self.note(node.note) if node.note else []
+        head = comment(node.note) if node.note else []
         if not node.down:
             return head + [loop_head(node)] + _indent(
                 self.step_rows(node) + self.nodes(node.body)) + ["}"]
@@ -341,10 +342,7 @@ def stepping_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
 def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p: bool,
                    real: Precision) -> list[str]:
     t = real.c_type
-    head = [("/* " if i == 0 else "   ") + line + (" */" if i == len(loop.note.split("\n")) - 1
-                                                 else "")
-            for i, line in enumerate(loop.note.split("\n"))]
-    head.append(loop_head(loop))
+    head = comment(loop.note) + [loop_head(loop)]
     rows = {}  # the rows the bodies read
     for call in (c for c in loop.body if isinstance(c, Call)):
         for port, source in call.args:
