@@ -4,10 +4,11 @@ printed in C as GCC/Clang vector statements with their scalar lanes as the fallb
 
 Checked: the vector form against the scalar form of the same model (random models with
 inputs in f, sparse and dense Jacobians, unit and dense rows of H, diagonal and correlated
-R, lengths that leave a shorter last chunk), against the NumPy reference over a run, the
-vector branch bitwise against its scalar lanes (plain, fused and -DDERIVE_VECTOR=0 builds),
-P_new exactly symmetric, P0 read by its upper triangle only, gating, the counts (header =
-Python's executed count = the C text's vector branch, lane by lane), and the refusals."""
+R, lengths that 4 does not divide: an overlapping last chunk), against the NumPy reference
+over a run, the vector branch bitwise against its scalar lanes (plain, fused and
+-DDERIVE_VECTOR=0 builds), P_new exactly symmetric, P0 read by its upper triangle only,
+gating, the counts (header = Python's executed count = the C text's vector branch, lane by
+lane), and the refusals."""
 
 import re
 import shutil
@@ -152,8 +153,8 @@ def test_unit_rows_of_either_sign_and_a_state_measured_twice():
 def test_the_vector_branch_computes_its_scalar_lanes_bit_for_bit(cflags, tmp_path):
     """The same file built with DERIVE_VECTOR 1 and 0: identical bits, P_new exactly
     symmetric (the lower triangle written by transposition), on the catalog's INS/GNSS EKF
-    (which declares rows = vector) and a random model whose length leaves a shorter last
-    chunk."""
+    (which declares rows = vector) and a random model whose length 4 does not divide (its
+    last chunk overlaps the one before)."""
     rng = np.random.default_rng(7)
     dt = (np.array([0.01]),)
     cases = [("ins_gnss", {}, 16, 6, "update_gnss", 6, dt),
