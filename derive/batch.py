@@ -227,7 +227,7 @@ def _checked_out(module: FilterModule, out, layout: _Layout, has_P0: bool,
 
 
 def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
-               with_covariance: bool = True, out=None):
+               with_covariance: bool = True, out=None, us=None):
     """Filter ``tracks`` independent tracks with the generated C ``run_tracks``.
 
     ``kernel``: a :class:`Kernel`, the path of a generated ``.c`` file, or (NumPy inputs
@@ -235,7 +235,8 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
     (tracks, steps) when m = 1); ``x0s``: (tracks, n) or one (n,) shared by all;
     ``P0s``: (tracks, n, n) / (tracks, n*n) or one shared, required exactly when the
     filter starts from a covariance; ``p``: the free parameters, one row or one row per
-    step, shared by every track (as the C takes them).
+    step, shared by every track (as the C takes them); ``us``: a model with inputs'
+    (tracks, steps, n_u), NumPy only.
 
     NumPy inputs: the tracks are split into contiguous slices (``workers`` of them, or
     :data:`SLICES_PER_WORKER` times as many for a large batch) run by ``workers`` threads
@@ -264,6 +265,8 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
         if not _is_dask(zs):
             raise ModelError("batch run_tracks: Dask inputs need zs as a Dask array "
                              "chunked along the track axis")
+        if us is not None:
+            raise ModelError("batch run_tracks: us= is for NumPy inputs")
         return _run_dask(as_kernel(kernel), zs, x0s, P0s, p, with_covariance)
     if workers is None:
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
@@ -275,6 +278,7 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
     zs = module.converted("run_tracks", "zs", zs)
     x0s = module.converted("run_tracks", "x0s", x0s)
     P0s = None if P0s is None else module.converted("run_tracks", "P0s", P0s)
+    us = None if us is None else module.converted("run_tracks", "us", us)
     layout = _check(module, zs.shape, x0s.shape, None if P0s is None else P0s.shape, p)
     tracks, steps, n = layout.tracks, layout.steps, layout.n
     if out is not None:
@@ -290,7 +294,8 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
         try:
             module.run_tracks(zs[start:stop], _slice(x0s, layout.x0_shared, start, stop),
                               _slice(P0s, layout.P0_shared, start, stop), p, with_covariance,
-                              out=(xs[start:stop], None if Ps is None else Ps[start:stop]))
+                              out=(xs[start:stop], None if Ps is None else Ps[start:stop]),
+                              us=None if us is None else us[start:stop])
         except (NumericalError, PatternError) as exc:
             note = f" (its track numbers count from {start})" if "(track " in str(exc) else ""
             raise type(exc)(f"tracks {start} to {stop - 1}{note}: {exc}") from None

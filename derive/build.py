@@ -323,9 +323,10 @@ def nan_element(rows, function: str, status) -> str:
 
 
 def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=True,
-                out=None):
+                out=None, us=None):
     """Call ``PREFIX_run_tracks`` on track-major arrays: zs (tracks, steps, m), x0
-    (tracks, n), P0 (tracks, n, n); returns xs (tracks, steps, n) and Ps (or None).
+    (tracks, n), P0 (tracks, n, n), for a model with inputs us (tracks, steps, n_u);
+    returns xs (tracks, steps, n) and Ps (or None).
     ``out``: (xs, Ps) written in place instead (C-contiguous, of those shapes; Ps None when
     not stored), as derive.batch passes the slices of one result. Every array is of the
     kernel's dtype (float32 for a float kernel)."""
@@ -349,18 +350,26 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
     n = int(inputs["x0"].dims[0])
     xs, Ps_out = out if out is not None else (module.empty((tracks, steps, n)), None)
     buf = module.buffer
-    args = [steps, tracks, buf(zs), buf(x0)]
     Ps = None
     if P0 is not None:
         P0 = track_major("P0", P0)
         Ps = (Ps_out if out is not None else module.empty((tracks, steps, n, n))
               ) if with_covariance else None
-        args += [buf(P0), buf(xs), buf(Ps) if Ps is not None else module.ffi.NULL]
-    else:
-        args.append(buf(xs))
     if p is not None:
         p = module._array("run_tracks", inputs["p"], p, steps)
-        args += [buf(p), inputs["p"].size() if p.ndim == 2 else 0]
+    # in the function's order; its other optional outputs (a log-likelihood's lls, dlls)
+    # are not stored
+    given = {"z": zs, "x0": x0, "P0": P0, "xs": xs, "Ps": Ps, "p": p,
+             "u": None if us is None else track_major("u", us)}
+    args = [steps, tracks]
+    for arg in run.arguments:
+        value = given.get(arg.name)
+        if value is None and not arg.optional:
+            raise ShapeError(f"{module.prefix}_run_tracks: argument {arg.name!r} is "
+                             "required (run it track by track with run)")
+        args.append(module.ffi.NULL if value is None else buf(value))
+    if p is not None:
+        args.append(inputs["p"].size() if p.ndim == 2 else 0)
     status = fn(*args)
     if status:
         raise status_error(module, "run_tracks", status, {"P0": P0, "p": p, "z": zs})

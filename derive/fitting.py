@@ -12,8 +12,9 @@ The standard errors are the square roots of the diagonal of the inverse observed
 information, -d^2 log L / d theta^2 at the estimate, in the parameters themselves.
 
 Several tracks (a list of measurement arrays, one parameter set) sum their
-log-likelihoods and gradients; each track is its own C call, the tracks spread over
-threads (the C releases the GIL).
+log-likelihoods and gradients: the tracks of one length go through the C ``run_tracks``
+(in slices over threads, as derive.batch splits a batch: the C releases the GIL), or,
+for a filter without it, one C ``run`` per track.
 
 A model file's text with some valued parameters freed (:func:`free_text`, their values
 becoming the examples the fit starts from) and with the fitted values written back
@@ -38,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import scipy.optimize
 
-from . import catalog
+from . import batch, catalog
 from .build import status_error
 from .domains import declared_domain
 from .errors import ModelError, NumericalError
@@ -286,44 +287,68 @@ def split_columns(model, data: np.ndarray, where: str = "data") -> tuple[np.ndar
 
 # -- the fit --------------------------------------------------------------------------------
 
-class _TrackRun:
-    """One track's C ``run`` prepared once (its arrays converted, its outputs allocated,
-    Ps left NULL): each call writes the parameters in place and returns (lls, dlls)."""
+class _TracksRun:
+    """Tracks of one length through one C call prepared once (their arrays converted and
+    laid one track after another, the outputs allocated, Ps left NULL): ``run_tracks``
+    over all of them, or ``run`` on the one track of a filter without run_tracks. Each
+    call writes the parameters in place and returns (log L, its gradient) summed over the
+    tracks and steps."""
 
-    def __init__(self, module, zs, us, x0, P0, q: int) -> None:
-        fn = module.functions["run"]
-        steps = len(zs)
-        self.module, self.p = module, np.zeros(q, dtype=module.dtype)
-        self.lls = module.empty(steps)
-        self.dlls = module.empty(steps * q).reshape(steps, q)
-        given = {"z": zs, "u": us, "x0": x0, "P0": P0, "p": self.p}
-        outputs = {"lls": self.lls, "dlls": self.dlls}
-        self.values = {k: v for k, v in given.items() if v is not None}
-        self.keep, args, strides = [], [steps], []
+    def __init__(self, module, tracks, x0, P0, q: int) -> None:
+        name = "run_tracks" if "run_tracks" in module.functions else "run"
+        if name == "run" and len(tracks) != 1:
+            raise ValueError("a filter without run_tracks runs one track a call")
+        fn = module.functions[name]
+        count, steps = len(tracks), len(tracks[0][0])
+        self.module, self.name, self.p = module, name, np.zeros(q, dtype=module.dtype)
+        self.lls = module.empty(count * steps)
+        self.dlls = module.empty(count * steps * q).reshape(count * steps, q)
+        given = {"z": [zs for zs, _ in tracks], "u": [us for _, us in tracks],
+                 "x0": [x0] * count, "P0": [P0] * count}
+        #: run's outputs by name, each track's rows after the one before (Ps not stored)
+        self.outputs = {"lls": self.lls, "dlls": self.dlls}
+        outputs, self.values = self.outputs, {}
+        self.keep, args, strides = [], [steps] + ([count] if name == "run_tracks" else []), []
         for arg in fn.arguments:
             if arg.output:
                 array = outputs.get(arg.name)
                 if array is None and arg.optional:
                     args.append(module.ffi.NULL)
                     continue
-                array = module.empty(arg.size(steps)) if array is None else array
-            else:
-                array = (self.p if arg.name == "p" else
-                         np.ascontiguousarray(given[arg.name], dtype=module.dtype))
+                if array is None:
+                    array = outputs[arg.name] = module.empty(count * arg.size(steps))
+            elif arg.name == "p":
+                array = self.p
                 if arg.strided:
                     strides.append(0)  # one row of p for every step
+            else:
+                array = np.ascontiguousarray(np.stack(given[arg.name]), dtype=module.dtype)
+                self.values[arg.name] = array
             self.keep.append(array)
             args.append(module.buffer(array))
         self.function = getattr(module.lib, fn.name)
         self.status = fn.returns_status
         self.args = args + strides
 
-    def __call__(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
         self.p[:] = theta
         status = self.function(*self.args)
         if self.status and status:
-            raise status_error(self.module, "run", status, {**self.values, "p": self.p})
-        return self.lls, self.dlls
+            raise status_error(self.module, self.name, status, {**self.values, "p": self.p})
+        return float(np.sum(self.lls)), np.sum(self.dlls, axis=0)
+
+
+def _track_runs(module, tracks, x0, P0, q: int, workers: int) -> list[_TracksRun]:
+    """The C calls of one evaluation: the tracks of each length in ``run_tracks`` calls,
+    split into ``workers`` slices as derive.batch splits a batch (whole blocks of lanes);
+    without run_tracks, one ``run`` per track."""
+    if "run_tracks" not in module.functions:
+        return [_TracksRun(module, [track], x0, P0, q) for track in tracks]
+    lengths: dict[int, list] = {}
+    for track in tracks:
+        lengths.setdefault(len(track[0]), []).append(track)
+    return [_TracksRun(module, group[a:b], x0, P0, q) for group in lengths.values()
+            for a, b in batch.split(len(group), workers, batch.TRACK_MULTIPLE)]
 
 
 @dataclass
@@ -336,29 +361,37 @@ class _Objective:
     P0: np.ndarray
     logs: np.ndarray  # True where a parameter is optimised as its log
     names: tuple[str, ...]
+    workers: int = 1
     pool: ThreadPoolExecutor | None = None
     evaluations: int = 0
     runs: list | None = None
     last: float = math.inf
+    memo: tuple | None = None  # (theta's bytes, (log L, gradient)) of the last evaluation
 
     def theta(self, phi: np.ndarray) -> np.ndarray:
         return np.where(self.logs, np.exp(np.where(self.logs, phi, 0.0)), phi)
 
     def loglik(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
-        """(log L, d log L / d theta) summed over the tracks (on the pool's threads when
-        there are several: the C releases the GIL)."""
+        """(log L, d log L / d theta) summed over the tracks (the C calls on the pool's
+        threads when there are several: the C releases the GIL); the last evaluation's
+        again without running it (BFGS ends where it evaluated last)."""
+        key = theta.tobytes()
+        if self.memo is not None and self.memo[0] == key:
+            return self.memo[1]
         self.evaluations += 1
-
-        def one(run):
-            lls, dlls = run(theta)
-            return float(np.sum(lls)), np.sum(dlls, axis=0)
-
+        self.memo = None
         if self.runs is None:
-            self.runs = [_TrackRun(self.module, zs, us, self.x0, self.P0, len(theta))
-                         for zs, us in self.tracks]
-        parts = (list(self.pool.map(one, self.runs)) if self.pool is not None
-                 else [one(r) for r in self.runs])
-        return sum(p[0] for p in parts), np.sum([p[1] for p in parts], axis=0)
+            self.runs = _track_runs(self.module, self.tracks, self.x0, self.P0, len(theta),
+                                    self.workers)
+        if len(self.runs) == 1:
+            value = self.runs[0](theta)
+        else:
+            if self.pool is None:
+                self.pool = ThreadPoolExecutor(min(self.workers, len(self.runs)))
+            parts = list(self.pool.map(lambda run: run(theta), self.runs))
+            value = sum(p[0] for p in parts), np.sum([p[1] for p in parts], axis=0)
+        self.memo = key, value
+        return value
 
     def __call__(self, phi: np.ndarray) -> tuple[float, np.ndarray]:
         theta = self.theta(phi)
@@ -457,16 +490,15 @@ def fit(model, data, *, start: dict[str, float] | None = None,
         generated = kernel(model, [zs for zs, _ in tracks])
     generation = time.perf_counter() - began
     began = time.perf_counter()
-    workers = min(len(tracks), workers or os.cpu_count() or 1)
-    pool = ThreadPoolExecutor(workers) if workers > 1 else None
-    objective = _Objective(generated.c, tracks, x0, P0, logs, names, pool)
+    objective = _Objective(generated.c, tracks, x0, P0, logs, names,
+                           min(len(tracks), workers or os.cpu_count() or 1))
     try:
         theta, ll, grad, H, result = _maximise(objective, theta0, logs, gtol, polish,
                                                _progress(sys.stderr.isatty() if progress
                                                          is None else progress))
     finally:
-        if pool is not None:
-            pool.shutdown()
+        if objective.pool is not None:
+            objective.pool.shutdown()
     if progress or (progress is None and sys.stderr.isatty()):
         print(file=sys.stderr)
     information = -H
@@ -507,14 +539,14 @@ def _maximise(objective: _Objective, theta0: np.ndarray, logs: np.ndarray, gtol:
         except np.linalg.LinAlgError:
             break
         trial = theta - step
+        if np.max(np.abs(step) / np.maximum(np.abs(trial), 1e-300)) <= 1e-12:
+            break  # the step would not move the estimate: not evaluated
         if np.any(trial[logs] <= 0):
             break
         ll_trial, grad_trial = objective.loglik(trial)
         if not ll_trial >= ll - 1e-13 * abs(ll):  # (near the optimum, log L's rounding)
             break
         theta, ll, grad = trial, ll_trial, grad_trial
-        if np.max(np.abs(step) / np.maximum(np.abs(theta), 1e-300)) <= 1e-12:
-            break  # a further step would not move the estimate
     return theta, ll, grad, H, result
 
 

@@ -119,13 +119,13 @@ class SharedOptions:
     loglik: bool = option(
         False, flag="--loglik", kind=bool, needs="loglik",
         help="run also returns each step's Gaussian log-likelihood of the innovation "
-             "(lls; C: may be NULL), from the factors of S the update solves with; no "
-             "run_tracks")
+             "(lls; C: may be NULL, run_tracks too), from the factors of S the update "
+             "solves with")
     gradient: bool = option(
         False, flag="--gradient", kind=bool, needs="loglik",
         help="with --loglik: run also returns each step's exact gradient of the "
              "log-likelihood with respect to the free parameters p (dlls; C: may be NULL), "
-             "by the sensitivity recursion; no run_tracks")
+             "by the sensitivity recursion (run_tracks too)")
     run_tracks: bool = option(
         True, flag="--no-run-tracks", kind=bool, needs="run_tracks",
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")

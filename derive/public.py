@@ -30,7 +30,7 @@ APPLICATIONS: dict[str, tuple[str, ...]] = {
     "derive.filters.kf": ("prior",),
     "derive.filters.nonlinear": (),
     "derive.filters.sensors": ("program_name", "reference_run", "sensor_groups",
-                               "transition_function", "uses_sensor_run"),
+                               "transition_function", "unit_norm_noise", "uses_sensor_run"),
     "derive.filters.spec": ("Conditioned", "FilterSpec", "INNOVATION", "LAINIOTIS",
                             "NEXT_PRIOR", "NOISE", "NOMINAL", "POSTERIOR", "PRIOR", "UPDATE"),
     "derive.fitting": ("KERNEL_CFLAGS", "fit", "kernel", "kernel_filter", "split_columns"),

@@ -190,7 +190,10 @@ def lanes_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
     lines = []
     if run.enter is not None:  # init(x0) into x_init, where the state starts
         (_, start, _), = run.enter.into
-        lines += [f"{t} {start.array}[{start.size}];"] + (["int status;"] if status else [])
+        # call_lines sets status only from an enter program that has checks
+        enter_checks = lowered[run.enter.program].has_checks
+        lines += [f"{t} {start.array}[{start.size}];"] + (["int status;"] if enter_checks
+                                                           else [])
         names = {port: (PARAMETER_PORT if isinstance(src, Row) else src)
                  for port, src in run.enter.args}
         names.update({port: row.array for port, row, _ in run.enter.into})

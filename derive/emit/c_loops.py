@@ -387,6 +387,20 @@ def _block_arrays(run: Run) -> dict[str, int]:
     return arrays
 
 
+def _step_outputs(run: Run, lowered: dict[str, LoweredProgram]) -> dict[str, int]:
+    """The outputs of the loops' calls that no carried state or local array holds (the
+    log-likelihood ``ll`` and its gradient ``dll``, which run stores): their block arrays,
+    by name: elements a lane."""
+    held = {s.new for s in run.states} | {s.name for s in run.states}
+    found: dict[str, int] = {}
+    for call in (c for c in walk(run.loops) if isinstance(c, Call)):
+        held |= {port for port, _, _ in call.into}
+        for port in lowered[call.program].outputs:
+            if port.name not in held:
+                found.setdefault(port.name, port.size)
+    return found
+
+
 def tracks_inlined(run: Run, lowered: dict[str, LoweredProgram]) -> bool:
     """True when run_tracks runs blocks of tracks in lanes: every body its loops call is
     inlined (else it runs run on every track)."""
@@ -398,7 +412,8 @@ def tracks_macros(run: Run, lowered: dict[str, LoweredProgram], real: Precision)
     the elements a lane holds: the carried state twice, the block arrays."""
     if not tracks_inlined(run, lowered):
         return []
-    per_lane = 2 * sum(s.size for s in run.states) + sum(_block_arrays(run).values())
+    per_lane = (2 * sum(s.size for s in run.states) + sum(_block_arrays(run).values())
+                + sum(_step_outputs(run, lowered).values()))
     return tracks_macro_lines(interleave(per_lane, real.bits // 8), real.bits // 8)
 
 
@@ -474,13 +489,26 @@ def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -
         block += [f"{t} {_block(s.name)}_pair[2][{s.size} * {n}];",
                   f"{t} *{_block(s.name)} = {_block(s.name)}_pair[0];",
                   f"{t} *{_block(s.new)} = {_block(s.name)}_pair[1];"]
-    block += [f"{t} {_block(name)}[{size} * {n}];" for name, size in _block_arrays(run).items()]
+    outputs = _step_outputs(run, lowered)
+    block += [f"{t} {_block(name)}[{size} * {n}];"
+              for name, size in {**_block_arrays(run), **outputs}.items()]
     if checked:
         block.append(f"int status_b[{n}];")
+    enter = lowered.get("enter") if run.enter is not None and run.enter.program == "enter" \
+        else None
+    if enter is not None:  # each lane's state from its track's start arguments
+        block += [f"{t} {s.name}_e[{s.size}];" for s in run.states]
+        if enter.has_checks:
+            block.append("int status;")
     block.append(f"for (j = 0; j < {n}; ++j) {{")
+    if enter is not None:
+        names = {port: f"{row.array} + (t + j) * {row.size}" for port, row in run.enter.args}
+        names.update({s.name: f"{s.name}_e" for s in run.states})
+        block += ["    " + line for line in call_lines(prefix, enter, names)]
     for s in run.states:
+        start = f"{s.name}_e[i]" if enter is not None else f"{s.start}[(t + j) * {s.size} + i]"
         block += [f"    for (i = 0; i < {s.size}; ++i) {{",
-                  f"        {_block(s.name)}[i * {n} + j] = {s.start}[(t + j) * {s.size} + i];",
+                  f"        {_block(s.name)}[i * {n} + j] = {start};",
                   "    }"]
     block.append("}")
     for loop in run.loops:
@@ -506,7 +534,8 @@ def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -
                            f"        {_block(port)}[i * {n} + j] = {row.array}[((t + j) * "
                            f"steps + {row.row}) * {row.size} + i];", "    }"]
         step_lines += ["}", SIMD, f"for (j = 0; j < {n}; ++j) {{"]
-        step_lines += ["    " + x for x in _lane(run, loop, lowered, prefix, reads_p)] + ["}"]
+        step_lines += ["    " + x for x in _lane(run, loop, lowered, prefix, reads_p,
+                                                  outputs)] + ["}"]
         if checked:
             step_lines += ["{", "    int failed = 0;", f"    for (j = 0; j < {n}; ++j) {{",
                            "        failed |= status_b[j];", "    }", "    if (failed) {",
@@ -518,6 +547,7 @@ def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -
         made = {s: _block(states[s].new) for s in states}
         made.update({name: _block(name) for c in loop.body if isinstance(c, Call)
                      for _, _, name in c.into})
+        made.update({name: _block(name) for name in outputs})
         for s in sorted((s for s in loop.body if isinstance(s, Store)),
                         key=lambda s: s.optional):
             if s.state not in made:
@@ -536,13 +566,25 @@ def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -
     return out + [f"for (; t + {n} <= tracks; t += {n}) {{"] + ["    " + x for x in block] + ["}"]
 
 
+def call_lines(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
+    """The C call of ``PREFIX_NAME`` with its ports named by ``names`` (else their names);
+    a non-zero status is returned at once."""
+    args = ", ".join(names.get(name, name) for name in c_printer.argument_order(lp))
+    if not lp.has_checks:
+        return [f"{prefix}_{lp.name}({args});"]
+    return [f"status = {prefix}_{lp.name}({args});", "if (status) {", "    return status;",
+            "}"]
+
+
 def _lane(run: Run, loop: Steps, lowered: dict[str, LoweredProgram], prefix: str,
-          reads_p: bool) -> list[str]:
-    """Lane j of a loop's calls; a failed check's status kept, the earliest call's first."""
+          reads_p: bool, outputs: dict[str, int]) -> list[str]:
+    """Lane j of a loop's calls; a failed check's status kept, the earliest call's first;
+    ``outputs``: the calls' outputs held in block arrays of their own."""
     calls = [c for c in loop.body if isinstance(c, Call)]
     texts = [(_call(lowered[c.program], body_name(prefix, "step" if c.program == "step"
                                                    else "pass"),
-                    _call_names(run, c, reads_p), LANES), bool(lowered[c.program].checks),
+                    {**{name: f"{_block(name)} + j" for name in outputs},
+                     **_call_names(run, c, reads_p)}, LANES), bool(lowered[c.program].checks),
               "step_status" if c.program == "step" else "pass_status") for c in calls]
     if len(texts) == 1:
         text, checks, _ = texts[0]

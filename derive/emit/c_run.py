@@ -4,8 +4,14 @@ back; a guard is a branch."""
 
 from __future__ import annotations
 
-from derive.emit import c_printer
-from derive.emit.c_loops import P_STRIDE, body_name, checked_call, loop_head, row_pointer
+from derive.emit.c_loops import (
+    P_STRIDE,
+    body_name,
+    call_lines,
+    checked_call,
+    loop_head,
+    row_pointer,
+)
 from derive.lowering import LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
@@ -26,16 +32,6 @@ from derive.runs.loops import (
     Window,
     walk,
 )
-
-
-def call_lines(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
-    """The C call of ``PREFIX_NAME`` with its ports named by ``names`` (else their names);
-    a non-zero status is returned at once."""
-    args = ", ".join(names.get(name, name) for name in c_printer.argument_order(lp))
-    if not lp.has_checks:
-        return [f"{prefix}_{lp.name}({args});"]
-    return [f"status = {prefix}_{lp.name}({args});", "if (status) {", "    return status;",
-            "}"]
 
 
 def comment(note: str) -> list[str]:

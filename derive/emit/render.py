@@ -605,7 +605,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         + (c_loops.tracks_macros(run, bodied, real) if unit.run_tracks else []) + vector_macros,
         "functions": functions,
         "run_signature": run_signature,
-        "tracks_lines": c_loops.tracks_lines(tracks_signature, run, bodied, prefix, unused,
+        "tracks_lines": c_loops.tracks_lines(tracks_signature, run, bodied | {
+            name: lowered[name] for name in ("enter",) if name in lowered}, prefix, unused,
                                              tracks_checks, _run_on_track(unit, status),
                                              ["return 0;"] if status else [], real)
         if unit.run_tracks else [],

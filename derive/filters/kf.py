@@ -14,8 +14,6 @@ dropped, for correlated R too.  The masks are selects: no flop.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import sympy
 
@@ -298,7 +296,7 @@ def derive_unit(model, spec, options):
     unit = make_unit(model, spec, programs, options,
                      step_inputs=linear_step_inputs(model), carried=carried)
     if input_port(model):
-        unit = with_fact(replace(unit, run_tracks=False), INPUTS_FACT)
+        unit = with_fact(unit, INPUTS_FACT)
     if joseph:
         unit = with_fact(unit, JOSEPH_FACT)
     return with_fact(unit, MISSING_FACT) if missing else unit
@@ -340,7 +338,7 @@ def loglik_reference(model, zs, options):
 
 
 INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z): "
-               "x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k) + v; no run_tracks")
+               "x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k) + v")
 
 
 CONDITIONING = (Conditioned(INNOVATION, "ldl"), Conditioned(UPDATE, "cancel"))

@@ -62,8 +62,8 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
     ``lookahead``: the two-step map of an affine step (derive.runs.kinds.two_steps);
     ``carried``: the unit's own carried (input port, output port) pairs (default: the run
     kind's), entered by an ``enter`` program and stored by a ``store`` program.  With the
-    option ``loglik`` the step's output ``ll`` is stored by run per step (``lls``;
-    no run_tracks), with ``gradient`` also its last output ``dll`` (``dlls``).
+    option ``loglik`` the step's output ``ll`` is stored by run (and run_tracks) per step
+    (``lls``), with ``gradient`` also its last output ``dll`` (``dlls``).
 
     The spec gives the unit its title, run-loop kind, run descriptions and whether the
     function run_tracks applies; the run kind its carried state.  Which P0 the code accepts is
@@ -82,14 +82,14 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         text = _fmt(value)
         facts.append(f"{key} = {text}" if len(text) <= 300 else
                      f"{key}: {np.asarray(value).shape} constants baked into the code")
-    # the option loglik: the step's output ll, stored per step by run (not run_tracks)
+    # the option loglik: the step's output ll, stored per step by run and run_tracks
     gradient = bool(options.get("gradient"))
     loglik = bool(options.get("loglik")) or gradient
     if loglik:
         facts.append(LOGLIK_FACT)
     if gradient:  # and its gradient dll, stored per step as dlls
         facts.append(GRADIENT_FACT)
-    fields = spec.unit_fields(window=window, run_tracks=options.run_tracks and not loglik)
+    fields = spec.unit_fields(window=window, run_tracks=options.run_tracks)
     if gradient:  # its enter program starts the sensitivities at zero
         fields["extra_programs"] = tuple(fields["extra_programs"]) + ("enter",)
     unit_options = {}

@@ -413,9 +413,9 @@ def _validate(unit: Unit) -> None:
             raise ProgramError(f"unit {unit.prefix} ({unit.family}): no program {name!r} in "
                                f"this filter; programs beyond its run kind's: "
                                f"{', '.join(unit.extra_programs) or 'none'}")
-    if unit.run_tracks and ("enter" in unit.programs or "store" in unit.programs):
-        raise ProgramError(f"unit {unit.prefix}: run_tracks does not take enter/store "
-                           "programs; give run_tracks=False")
+    if unit.run_tracks and "store" in unit.programs:
+        raise ProgramError(f"unit {unit.prefix}: run_tracks does not take a store "
+                           "program; give run_tracks=False")
     if unit.lookahead is not None:
         two = unit.lookahead
         if not unit.run.lookahead:

@@ -147,7 +147,6 @@ int gps_static_pred_run(size_t steps, const double *z, const double *x0, double 
 {
 #if DERIVE_VECTOR
     double x_init[3];
-    int status;
     gps_static_pred_init(x0, x_init);
     (void)gps_static_pred_pass_body;
     /* the identical blocks in the lanes of one vector (lane b: block b) */

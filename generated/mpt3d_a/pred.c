@@ -165,7 +165,6 @@ int mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *xs
 {
 #if DERIVE_VECTOR
     double x_init[6];
-    int status;
     mpt3d_a_pred_init(x0, x_init);
     (void)mpt3d_a_pred_pass_body;
     /* the identical blocks in the lanes of one vector (lane b: block b) */

@@ -22,6 +22,7 @@ from derive.pipeline import load_generated
 from derive.program import ProgramError
 from derive.reference import steady as reference
 from derive.runs.unit import LOOKAHEAD_NEXT as ZNEXT
+from derive.statements import Assign
 
 
 def _two_step(model, name="sskf"):
@@ -33,7 +34,8 @@ def _outputs(program, port):
     """``port``'s outputs of an optimised program as expressions in the input elements."""
     values = {}
     for statement in program.body:
-        values[statement.target] = statement.expr.xreplace(values)
+        if isinstance(statement, Assign):  # a check (z present, a pivot) computes nothing
+            values[statement.target] = statement.expr.xreplace(values)
     return [sympy.expand(e.xreplace(values)) for e in program.results[port]]
 
 

@@ -222,10 +222,16 @@ def test_a_dense_scalar_update_costs_one_division_and_a_rank_one_fma_per_measure
 # -- the ins_gnss flight, in the form the catalog does not use ---------------------------------
 
 
-@pytest.mark.parametrize("form", ["batch", "sequential"])
-def test_ins_gnss_whole_flight_matches_the_numpy_reference(tmp_path, form):
+@pytest.fixture(scope="module")
+def ins_flight():
+    """The flight (seed 0) and its NumPy reference run, shared by both forms."""
     fl = flight.simulate(seed=0)
-    ref = reference.run(fl)
+    return fl, reference.run(fl)
+
+
+@pytest.mark.parametrize("form", ["batch", "sequential"])
+def test_ins_gnss_whole_flight_matches_the_numpy_reference(tmp_path, form, ins_flight):
+    fl, ref = ins_flight
     generated = load_generated("ins_gnss", "ekf", {"update": form}, "c", tmp_path)
     facts = "\n".join(generated.unit.facts)
     assert ("update of gnss: sequential" in facts) == (form == "sequential")

@@ -100,7 +100,11 @@ def test_the_c_run_takes_lls_null_and_the_estimates_do_not_change(axes):
     assert len(step) == 3  # x_new, P_new, ll
     alone = generated.c.call("run", zs, num.x0, P0, with_covariance=False)  # Ps, lls NULL
     np.testing.assert_array_equal(alone, xs)
-    assert "run_tracks" not in generated.c.functions  # its lanes store the carried state
+    # run_tracks: each track's xs its own run's (lls not stored by the wrapper)
+    xs2, _ = generated.c.run_tracks(np.stack([zs, zs[::-1]]), np.stack([num.x0] * 2),
+                                    np.stack([P0] * 2))
+    np.testing.assert_array_equal(xs2[0], xs)
+    np.testing.assert_array_equal(xs2[1], generated.c.run(zs[::-1], num.x0, P0)[0])
     # Python's tracks axis: each track's lls as its own run's
     both = np.stack([zs, zs[::-1]], axis=-1)
     _, _, ll2 = generated.python.run(both, np.stack([num.x0] * 2, -1),

@@ -13,11 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from derive import cli
+from derive import cli, commands
 from derive.apps.bench import bars as bar_table
 from derive.apps.bench import timing
 from derive.apps.bench.bars import BARS, REFERENCE
 from derive.apps.bench.cases import CASES, Case, Skip, make_data, states
+from derive.apps.bench.costs import startup
 from derive.apps.bench.machine import probe
 from derive.apps.bench.machine.bound import case_bound
 from derive.apps.bench.run import (
@@ -38,13 +39,32 @@ TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats
                 scale_tracks=0, catalog_generation=False, generation_scaling=False,
                 compile_states=(2,), startup_repeats=1,
                 # the SymForce peer: tests/navigation/test_nav_symforce_peer.py
-                navigation_peer_calls=0)
+                navigation_peer_calls=0,
+                # the schedule rows of 12 to 120 axes and of the dense KFs (58 of the 93 s
+                # of CPU the run took with the defaults): tests/program/test_schedule_*.py
+                schedule_axes=(3,), schedule_dense=())
+"""The bench with tiny counts: every case, implementation, bar and table, each part at its
+smallest size (the parts' large sizes are checked in their own files)."""
+STARTUP_CALLS = startup.CALLS[:1]
+"""The start-up calls the bench run times: ``derive --help`` (beside the floor and one
+command's help). Every call's row and exit status: tests/compiled/test_startup.py."""
+
+
+class _FirstCommand:
+    """derive.commands with its first command only, for the bench run's start-up rows."""
+
+    @staticmethod
+    def modules():
+        return commands.modules()[:1]
 AGREE = 1e-9   # every implementation runs the same filter from the same start
 
 
 @pytest.fixture(scope="module")
 def result():
-    return run_bench(TINY)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(startup, "CALLS", STARTUP_CALLS)
+        patch.setattr(startup, "commands", _FirstCommand)
+        return run_bench(TINY)
 
 
 def test_one_row_per_case_and_implementation(result):
