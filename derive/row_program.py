@@ -6,8 +6,9 @@ final program without optimising it again (its rows are already minimal and the 
 would reorder their lanes):
 
 - :meth:`RowBuilder.row` computes a row ``base + sum sign * coef * sources`` over all its
-  lanes, chunk by chunk (:data:`~derive.rows.VECTOR_LANES` lanes; a last, shorter chunk is
-  scalar statements);
+  lanes, chunk by chunk (:data:`~derive.rows.VECTOR_LANES` lanes; where that does not divide
+  the row, the last chunk ends at the row's end and overlaps the one before it, whose
+  lanes it recomputes and counts; a row shorter than a chunk is scalar statements);
 - :meth:`RowBuilder.finish` keeps what the outputs and checks read: a scalar statement
   when it is read, a chunk when any of its lanes is (all its lanes are then computed, and
   counted: a vector computes them all), the prologue's statements when they are read, a
@@ -77,19 +78,23 @@ class RowBuilder:
         wanted = set(range(length)) if read is None else set(read)
         out: list[sympy.Expr] = []
         for start, stop in chunk_bounds(length, self.lanes):
+            # the new lanes of a chunk: all of them but in a last chunk that overlaps the one
+            # before it (lanes does not divide length), which recomputes that one's last lanes
+            first = len(out)
             lanes = None if base is None else tuple(base[start:stop])
             if lanes is not None and all(a == 0 for a in lanes):
                 lanes = None  # nothing to add in this chunk
             form = LaneSum(lanes, tuple((s, c, src[start:stop]) for s, c, src in terms))
-            some = len(wanted.intersection(range(start, stop)))
-            if stop - start < self.lanes or 0 < some < stop - start:
-                # the last, shorter chunk, or one read in part: scalar statements
-                out += [self.scalar(form.expr(lane)) for lane in range(stop - start)]
+            some = len(wanted.intersection(range(first, stop)))
+            if stop - start < self.lanes or 0 < some < stop - first:
+                # a row shorter than a chunk, or new lanes read in part: scalar statements
+                out += [self.scalar(form.expr(lane)) for lane in range(first - start,
+                                                                       stop - start)]
                 continue
             targets = tuple(self._temp() for _ in range(start, stop))
             chunk = RowChunk(targets, form)
             self.items.append(chunk)
-            out += targets
+            out += targets[first - start:]
         return out
 
     def finish(self, results: dict[str, Sequence[sympy.Expr]]) -> Program:

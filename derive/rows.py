@@ -169,10 +169,14 @@ class LoweredChunk:
 
 
 def chunk_bounds(length: int, lanes: int) -> list[tuple[int, int]]:
-    """``[start, stop)`` of the chunks of a row of ``length`` values, ``lanes`` each; the
-    last one shorter when ``lanes`` does not divide ``length`` (its lanes are printed as
-    scalar statements)."""
-    return [(k, min(k + lanes, length)) for k in range(0, length, lanes)]
+    """``[start, stop)`` of the chunks of a row of ``length`` values, ``lanes`` each; when
+    ``lanes`` does not divide ``length`` the last one ends at ``length`` and overlaps the
+    one before it (a 23-wide row of P: 5 chunks, the last over lanes 19-22, rather than a
+    remainder of 3 scalar statements); one shorter chunk when ``length < lanes``."""
+    if length <= lanes:
+        return [(0, length)] if length else []
+    return [(k, k + lanes) for k in range(0, length - lanes + 1, lanes)] + (
+        [(length - lanes, length)] if length % lanes else [])
 
 
 def check_chunks(chunks: Sequence[RowChunk]) -> None:

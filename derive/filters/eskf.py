@@ -35,6 +35,7 @@ sensor (one named ``all`` for a model that declares none).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 import sympy
@@ -42,7 +43,6 @@ import sympy
 from .. import manifolds as mf
 from .. import staging
 from ..domains import parameter_domains
-from ..errors import FilterError
 from ..options import SharedOptions, option
 from ..reference import eskf as eskf_reference
 from ..reference import sensors as sensors_reference
@@ -74,6 +74,7 @@ from .sensors import (
 )
 from .spec import FilterSpec
 from .unit import make_sensor_unit
+from .vector_rows import rows_fact, vector_predict
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -185,16 +186,17 @@ def reset_jacobian(layout: mf.TangentLayout, delta: list[sympy.Expr]) -> sympy.M
 # -- the stages --------------------------------------------------------------------------
 
 
-def eskf_predict_stage(model):
-    """x(k/k-1) = π(f(x, u)), P(k/k-1) = Fδ P Fδ^T + Fuδ Qu Fuδ^T + Q: the EKF's prediction
-    with the error-state Jacobians, its x projected onto the manifold."""
-    covariance = ekf_predict_stage(model, ekf_predict_parts(model, error_dynamics(model)))
+def eskf_predict_parts(model):
+    """``parts(prog, mapping, x) -> (π(f), Fδ, Fuδ Qu Fuδ^T + Q)``: the scalar work of the
+    prediction (derive.filters.ekf.ekf_predict_parts with the error-state Jacobians), its
+    x projected onto the manifold."""
+    parts = ekf_predict_parts(model, error_dynamics(model))
 
-    def predict(prog, mapping, x, P):
-        values, Pp = covariance(prog, mapping, x, P)
-        return _projected(prog, model.layout, values), Pp
+    def projected(prog, mapping, x):
+        values, F, Q = parts(prog, mapping, x)
+        return _projected(prog, model.layout, values), F, Q
 
-    return predict
+    return projected
 
 
 def _projected(prog, layout: mf.TangentLayout, values) -> sympy.Matrix:
@@ -288,37 +290,34 @@ def error_fact(model) -> list[str]:
 def derive_unit(model, spec, options):
     """The error-state EKF unit: predict and update_<sensor> (run kind sensors)."""
     check_nonlinear(model, spec.name)
-    if model.rows != "scalar":  # refused rather than derived otherwise than declared
-        raise FilterError(f"filter {spec.name!r} derives scalar rows only; model "
-                          f"{model.name!r} declares rows = {model.rows!r}")
     groups = sensor_groups(model)
     thresholds = gate_thresholds(groups, options)
     forms = update_forms(model, groups, options)
     sensors = {g.name: sensor_measurement(
         model, g, None if thresholds[g.name] is None else thresholds[g.name][1],
         sequential=forms[g.name] == "sequential") for g in groups}
-    programs, facts = nonlinear_programs(model, eskf_predict_stage(model),
+    parts = eskf_predict_parts(model)
+    vector = {}
+    if (options.rows or model.rows) == "vector":  # the updates stay scalar rows
+        vector = {"vector_predict": partial(vector_predict, parts)}
+    programs, facts = nonlinear_programs(model, ekf_predict_stage(model, parts),
                                          eskf_update_stage(model, options.reset), options,
-                                         spec.title, sensors=sensors)
+                                         spec.title, sensors=sensors, **vector)
     facts = (error_fact(model) + [
         "reset: P <- G P G^T after each injection, G = d((x [+] (dx + e)) [-] (x [+] dx))/de "
         "at e = 0 (sympy)" if options.reset else
         "reset: none (G = I; option reset applies G P G^T)"]
         + angle_facts(model) + noise_fact(model, "x(k-1/k-1), u(k)", "x(k/k-1), u(k)")
         + facts + sensor_facts(model, groups, thresholds, options.start, forms)
-        + unit_norm_fact(model))
+        + unit_norm_fact(model) + rows_fact(programs))
     return make_sensor_unit(model, spec, programs, options, groups, thresholds,
                             model.f_inputs, facts)
 
 
-def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, Rs=None,
-                  trace: list | None = None):
-    """The error-state reference (derive.reference.sensors.run with an injection and a
-    reset) for ``model`` at numbers (p as an argument, one row per step; ``Rs``: the
-    per-step R of the sensors whose R is given per call), from x0 and P0 (default: the
-    model's): the model's sympy Jacobians ∂f/∂x, ∂f/∂u, ∂h/∂x at numbers, taken into the
-    tangent space by derive.manifolds' numeric N and M; injection by its numeric ⊞; the
-    reset (option ``reset``) by Solà's G (derive.reference.eskf)."""
+def reference_predict(model):
+    """``predict(x, P, u, p) -> (x(k/k-1), P(k/k-1))`` of the error-state reference at
+    numbers (u: all the model's inputs; p: its parameters): the model's sympy ∂f/∂x and
+    ∂f/∂u taken into the tangent space by derive.manifolds' numeric N and M."""
     layout = model.layout
     params = list(model.parameters)
     X, U = list(model.state_symbols), list(model.inputs)
@@ -336,6 +335,21 @@ def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, 
         return (mf.project_numeric(layout, y),
                 A @ P @ A.T + Q(p) + (G @ Qu(p) @ G.T if U else 0.0))
 
+    return predict
+
+
+def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, Rs=None,
+                  trace: list | None = None):
+    """The error-state reference (derive.reference.sensors.run with an injection and a
+    reset) for ``model`` at numbers (p as an argument, one row per step; ``Rs``: the
+    per-step R of the sensors whose R is given per call), from x0 and P0 (default: the
+    model's): the model's sympy Jacobians ∂f/∂x, ∂f/∂u, ∂h/∂x at numbers, taken into the
+    tangent space by derive.manifolds' numeric N and M; injection by its numeric ⊞; the
+    reset (option ``reset``) by Solà's G (derive.reference.eskf)."""
+    layout = model.layout
+    params = list(model.parameters)
+    X = list(model.state_symbols)
+    predict = reference_predict(model)
     thresholds = gate_thresholds(sensor_groups(model), options)
     names = [u.name for u in model.inputs]
     sensors = []
@@ -382,10 +396,11 @@ def reference(model, data, options):
 SPECS = (FilterSpec(
     "eskf", "error-state extended Kalman filter", "nonlinear", "sensors", derive_unit,
     reference, options=EskfOptions, covariance=True, inputs=True, sensors=True, start=True,
-    manifolds=True, sensors_reference=reference_run, conditioning=CONDITIONING, listing=105,
+    manifolds=True, vector_rows=True, sensors_reference=reference_run,
+    conditioning=CONDITIONING, listing=105,
     about={"python": "Run the error-state EKF: predict the nominal state, update its error "
                      "in the tangent space and inject it.",
            "c": "Run the error-state EKF over steps steps; Ps may be NULL."}),)
 
 __all__ = ["SPECS", "EskfOptions", "derive_unit", "error_dynamics", "measurement_jacobian",
-           "reset_jacobian"]
+           "reference_predict", "reset_jacobian"]

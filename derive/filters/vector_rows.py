@@ -51,21 +51,23 @@ def vector_predict(parts, model, inputs: list[Port], outputs: list[Port], doc: s
                    bind) -> Program:
     """The EKF predict with its products as vector rows (the module docstring).
     ``parts(prog, mapping, x) -> (f, F, Q)``: the scalar work
-    (derive.filters.ekf.ekf_predict_parts); ``bind(prog) -> mapping`` of the model's
+    (derive.filters.ekf.ekf_predict_parts; the error-state EKF's f projected onto the
+    manifold, F and Q over the tangent space); ``bind(prog) -> mapping`` of the model's
     symbols to the program's inputs (p, u)."""
-    n = model.n
+    # x has the model's n entries, P its n_tangent rows (fewer with manifold states)
+    n_x, n = model.n, model.n_tangent
     # the scalar work, optimised as any program: f, F, Q's upper triangle
     upper = [(i, j) for i in range(n) for j in range(i, n)]
-    prologue = Program("predict", inputs, [Port("scalars", (n + n * n + len(upper),))],
+    prologue = Program("predict", inputs, [Port("scalars", (n_x + n * n + len(upper),))],
                        doc=doc)
     values, F, Q = parts(prologue, bind(prologue), prologue.matrix("x"))
     prologue.set_output("scalars", list(values) + list(F) + [Q[i, j] for i, j in upper])
     prologue = prologue.optimize()
     atoms = list(prologue.results["scalars"])
-    x_new = atoms[:n]
-    Fa = [atoms[n + i * n:n + (i + 1) * n] for i in range(n)]
+    x_new = atoms[:n_x]
+    Fa = [atoms[n_x + i * n:n_x + (i + 1) * n] for i in range(n)]
     Qa = [[sympy.S.Zero] * n for _ in range(n)]
-    for (i, j), atom in zip(upper, atoms[n + n * n:]):
+    for (i, j), atom in zip(upper, atoms[n_x + n * n:]):
         Qa[i][j] = Qa[j][i] = atom
 
     shell = Program("predict", inputs, outputs, doc=doc)

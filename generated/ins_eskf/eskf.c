@@ -16,7 +16,7 @@
  *     int ins_eskf_eskf_update_baro(x[16] storage, P[15*15] tangent, z[1], x_new[16] out storage, P_new[15*15] out tangent, p[1])
  *     int ins_eskf_eskf_run(steps, z_gnss[steps*6], z_baro[steps*1], u[steps*6], x0[16] storage, P0[15*15] tangent, xs[steps*16] out storage, Ps[steps*15*15] out optional tangent, p[1] rows p_stride)
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
- * symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
+ * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_gnss: P, P_new (inputs: upper triangle read; outputs: written whole)
  * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
@@ -28,7 +28,7 @@
  *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 42, sub 36, mul 185, div 2, sqrt 1, fma 768, neg 17, cmp 1, calls 0 (flops 1802, instructions 1052)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 40, sub 36, mul 190, div 2, sqrt 1, fma 814, neg 20, cmp 1, calls 0 (flops 1897, instructions 1104)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 18, mul 119, div 7, sqrt 1, fma 810, neg 0, cmp 6, calls 0 (flops 1776, instructions 972)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 26, div 2, sqrt 1, fma 147, neg 0, cmp 1, calls 0 (flops 325, instructions 179)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -42,6 +42,7 @@
  * sensors (run: predict with u(k), then each sensor's update in this order when its row k has no NaN): gnss (gpn, gpe, gpd, gvn, gve, gvd); baro (alt)
  * update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
+ * vector rows (rows = vector): predict computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
  * derive-interface: {"functions":[["ins_eskf_eskf_predict","predict",true,false,[["x",[16],false,false,false],["P",[15,15],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[15,15],true,false,false],["p",[1],false,false,false]]],["ins_eskf_eskf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[15,15],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[15,15],true,false,false],["p",[1],false,false,false]]],["ins_eskf_eskf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[15,15],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[15,15],true,false,false],["p",[1],false,false,false]]],["ins_eskf_eskf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[16],false,false,false],["P0",[15,15],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",15,15],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]],"spaces":{"sizes":{"storage":16,"tangent":15},"arrays":{"x":"storage","P":"tangent","x_new":"storage","P_new":"tangent","x0":"storage","P0":"tangent","xs":"storage","Ps":"tangent"}}}
  */
 #include <math.h>
@@ -63,6 +64,36 @@
 #define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
 #else
 #define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
+#ifndef DERIVE_VECTOR
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
+#define DERIVE_VECTOR 1
+#else
+#define DERIVE_VECTOR 0
+#endif
+#endif
+#if DERIVE_VECTOR
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
+#include <immintrin.h>
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
+#else
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
 #endif
 
@@ -251,202 +282,760 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const double t177 = DERIVE_FMA(t148, t164, DERIVE_FMA(t147, t162, t145*t163));
     const double t178 = 1e-10*p[0];
     const double t179 = 1e-08*p[0];
-    const double t180 = DERIVE_FMA(P[9], t71, DERIVE_FMA(P[2], t117, DERIVE_FMA(P[1], t116, DERIVE_FMA(P[11], t76, DERIVE_FMA(P[10], t73, P[0]*t115)))));
-    const double t181 = DERIVE_FMA(P[26], t76, DERIVE_FMA(P[25], t73, DERIVE_FMA(P[24], t71, DERIVE_FMA(P[1], t115, DERIVE_FMA(P[17], t117, P[16]*t116)))));
-    const double t182 = DERIVE_FMA(P[41], t76, DERIVE_FMA(P[40], t73, DERIVE_FMA(P[39], t71, DERIVE_FMA(P[32], t117, DERIVE_FMA(P[2], t115, P[17]*t116)))));
-    const double t183 = DERIVE_FMA(P[56], t76, DERIVE_FMA(P[55], t73, DERIVE_FMA(P[54], t71, DERIVE_FMA(P[3], t115, DERIVE_FMA(P[33], t117, P[18]*t116)))));
-    const double t184 = DERIVE_FMA(P[71], t76, DERIVE_FMA(P[70], t73, DERIVE_FMA(P[69], t71, DERIVE_FMA(P[4], t115, DERIVE_FMA(P[34], t117, P[19]*t116)))));
-    const double t185 = DERIVE_FMA(P[86], t76, DERIVE_FMA(P[85], t73, DERIVE_FMA(P[84], t71, DERIVE_FMA(P[5], t115, DERIVE_FMA(P[35], t117, P[20]*t116)))));
-    const double t186 = DERIVE_FMA(P[99], t71, DERIVE_FMA(P[6], t115, DERIVE_FMA(P[36], t117, DERIVE_FMA(P[21], t116, DERIVE_FMA(P[101], t76, P[100]*t73)))));
-    const double t187 = DERIVE_FMA(P[7], t115, DERIVE_FMA(P[37], t117, DERIVE_FMA(P[22], t116, DERIVE_FMA(P[116], t76, DERIVE_FMA(P[115], t73, P[114]*t71)))));
-    const double t188 = DERIVE_FMA(P[8], t115, DERIVE_FMA(P[38], t117, DERIVE_FMA(P[23], t116, DERIVE_FMA(P[131], t76, DERIVE_FMA(P[130], t73, P[129]*t71)))));
-    const double t189 = DERIVE_FMA(P[9], t115, DERIVE_FMA(P[39], t117, DERIVE_FMA(P[24], t116, DERIVE_FMA(P[146], t76, DERIVE_FMA(P[145], t73, P[144]*t71)))));
-    const double t190 = P[145]*t71;
-    const double t191 = DERIVE_FMA(P[40], t117, DERIVE_FMA(P[25], t116, DERIVE_FMA(P[161], t76, DERIVE_FMA(P[160], t73, DERIVE_FMA(P[10], t115, t190)))));
-    const double t192 = P[146]*t71;
-    const double t193 = DERIVE_FMA(P[41], t117, DERIVE_FMA(P[26], t116, DERIVE_FMA(P[176], t76, DERIVE_FMA(P[161], t73, DERIVE_FMA(P[11], t115, t192)))));
-    const double t194 = DERIVE_FMA(P[42], t117, DERIVE_FMA(P[27], t116, DERIVE_FMA(P[177], t76, DERIVE_FMA(P[162], t73, DERIVE_FMA(P[147], t71, P[12]*t115)))));
-    const double t195 = DERIVE_FMA(P[43], t117, DERIVE_FMA(P[28], t116, DERIVE_FMA(P[178], t76, DERIVE_FMA(P[163], t73, DERIVE_FMA(P[148], t71, P[13]*t115)))));
-    const double t196 = DERIVE_FMA(P[44], t117, DERIVE_FMA(P[29], t116, DERIVE_FMA(P[179], t76, DERIVE_FMA(P[164], t73, DERIVE_FMA(P[14], t115, P[149]*t71)))));
-    const double t197 = DERIVE_FMA(P[9], t77, DERIVE_FMA(P[2], t121, DERIVE_FMA(P[1], t120, DERIVE_FMA(P[11], t83, DERIVE_FMA(P[10], t71, P[0]*t118)))));
-    const double t198 = DERIVE_FMA(P[26], t83, DERIVE_FMA(P[25], t71, DERIVE_FMA(P[24], t77, DERIVE_FMA(P[1], t118, DERIVE_FMA(P[17], t121, P[16]*t120)))));
-    const double t199 = DERIVE_FMA(P[41], t83, DERIVE_FMA(P[40], t71, DERIVE_FMA(P[39], t77, DERIVE_FMA(P[32], t121, DERIVE_FMA(P[2], t118, P[17]*t120)))));
-    const double t200 = DERIVE_FMA(P[56], t83, DERIVE_FMA(P[55], t71, DERIVE_FMA(P[54], t77, DERIVE_FMA(P[3], t118, DERIVE_FMA(P[33], t121, P[18]*t120)))));
-    const double t201 = DERIVE_FMA(P[71], t83, DERIVE_FMA(P[70], t71, DERIVE_FMA(P[69], t77, DERIVE_FMA(P[4], t118, DERIVE_FMA(P[34], t121, P[19]*t120)))));
-    const double t202 = DERIVE_FMA(P[86], t83, DERIVE_FMA(P[85], t71, DERIVE_FMA(P[84], t77, DERIVE_FMA(P[5], t118, DERIVE_FMA(P[35], t121, P[20]*t120)))));
-    const double t203 = DERIVE_FMA(P[99], t77, DERIVE_FMA(P[6], t118, DERIVE_FMA(P[36], t121, DERIVE_FMA(P[21], t120, DERIVE_FMA(P[101], t83, P[100]*t71)))));
-    const double t204 = DERIVE_FMA(P[7], t118, DERIVE_FMA(P[37], t121, DERIVE_FMA(P[22], t120, DERIVE_FMA(P[116], t83, DERIVE_FMA(P[115], t71, P[114]*t77)))));
-    const double t205 = DERIVE_FMA(P[8], t118, DERIVE_FMA(P[38], t121, DERIVE_FMA(P[23], t120, DERIVE_FMA(P[131], t83, DERIVE_FMA(P[130], t71, P[129]*t77)))));
-    const double t206 = DERIVE_FMA(P[9], t118, DERIVE_FMA(P[39], t121, DERIVE_FMA(P[24], t120, DERIVE_FMA(P[146], t83, DERIVE_FMA(P[144], t77, t190)))));
-    const double t207 = DERIVE_FMA(P[40], t121, DERIVE_FMA(P[25], t120, DERIVE_FMA(P[161], t83, DERIVE_FMA(P[160], t71, DERIVE_FMA(P[145], t77, P[10]*t118)))));
-    const double t208 = P[161]*t71;
-    const double t209 = DERIVE_FMA(P[41], t121, DERIVE_FMA(P[26], t120, DERIVE_FMA(P[176], t83, DERIVE_FMA(P[146], t77, DERIVE_FMA(P[11], t118, t208)))));
-    const double t210 = DERIVE_FMA(P[42], t121, DERIVE_FMA(P[27], t120, DERIVE_FMA(P[177], t83, DERIVE_FMA(P[162], t71, DERIVE_FMA(P[147], t77, P[12]*t118)))));
-    const double t211 = DERIVE_FMA(P[43], t121, DERIVE_FMA(P[28], t120, DERIVE_FMA(P[178], t83, DERIVE_FMA(P[163], t71, DERIVE_FMA(P[148], t77, P[13]*t118)))));
-    const double t212 = DERIVE_FMA(P[44], t121, DERIVE_FMA(P[29], t120, DERIVE_FMA(P[179], t83, DERIVE_FMA(P[164], t71, DERIVE_FMA(P[14], t118, P[149]*t77)))));
-    const double t213 = DERIVE_FMA(P[9], t75, DERIVE_FMA(P[2], t124, DERIVE_FMA(P[1], t123, DERIVE_FMA(P[11], t71, DERIVE_FMA(P[10], t84, P[0]*t122)))));
-    const double t214 = DERIVE_FMA(P[26], t71, DERIVE_FMA(P[25], t84, DERIVE_FMA(P[24], t75, DERIVE_FMA(P[1], t122, DERIVE_FMA(P[17], t124, P[16]*t123)))));
-    const double t215 = DERIVE_FMA(P[41], t71, DERIVE_FMA(P[40], t84, DERIVE_FMA(P[39], t75, DERIVE_FMA(P[32], t124, DERIVE_FMA(P[2], t122, P[17]*t123)))));
-    const double t216 = DERIVE_FMA(P[56], t71, DERIVE_FMA(P[55], t84, DERIVE_FMA(P[54], t75, DERIVE_FMA(P[3], t122, DERIVE_FMA(P[33], t124, P[18]*t123)))));
-    const double t217 = DERIVE_FMA(P[71], t71, DERIVE_FMA(P[70], t84, DERIVE_FMA(P[69], t75, DERIVE_FMA(P[4], t122, DERIVE_FMA(P[34], t124, P[19]*t123)))));
-    const double t218 = DERIVE_FMA(P[86], t71, DERIVE_FMA(P[85], t84, DERIVE_FMA(P[84], t75, DERIVE_FMA(P[5], t122, DERIVE_FMA(P[35], t124, P[20]*t123)))));
-    const double t219 = DERIVE_FMA(P[99], t75, DERIVE_FMA(P[6], t122, DERIVE_FMA(P[36], t124, DERIVE_FMA(P[21], t123, DERIVE_FMA(P[101], t71, P[100]*t84)))));
-    const double t220 = DERIVE_FMA(P[7], t122, DERIVE_FMA(P[37], t124, DERIVE_FMA(P[22], t123, DERIVE_FMA(P[116], t71, DERIVE_FMA(P[115], t84, P[114]*t75)))));
-    const double t221 = DERIVE_FMA(P[8], t122, DERIVE_FMA(P[38], t124, DERIVE_FMA(P[23], t123, DERIVE_FMA(P[131], t71, DERIVE_FMA(P[130], t84, P[129]*t75)))));
-    const double t222 = DERIVE_FMA(P[9], t122, DERIVE_FMA(P[39], t124, DERIVE_FMA(P[24], t123, DERIVE_FMA(P[145], t84, DERIVE_FMA(P[144], t75, t192)))));
-    const double t223 = DERIVE_FMA(P[40], t124, DERIVE_FMA(P[25], t123, DERIVE_FMA(P[160], t84, DERIVE_FMA(P[145], t75, DERIVE_FMA(P[10], t122, t208)))));
-    const double t224 = DERIVE_FMA(P[41], t124, DERIVE_FMA(P[26], t123, DERIVE_FMA(P[176], t71, DERIVE_FMA(P[161], t84, DERIVE_FMA(P[146], t75, P[11]*t122)))));
-    const double t225 = DERIVE_FMA(P[42], t124, DERIVE_FMA(P[27], t123, DERIVE_FMA(P[177], t71, DERIVE_FMA(P[162], t84, DERIVE_FMA(P[147], t75, P[12]*t122)))));
-    const double t226 = DERIVE_FMA(P[43], t124, DERIVE_FMA(P[28], t123, DERIVE_FMA(P[178], t71, DERIVE_FMA(P[163], t84, DERIVE_FMA(P[148], t75, P[13]*t122)))));
-    const double t227 = DERIVE_FMA(P[44], t124, DERIVE_FMA(P[29], t123, DERIVE_FMA(P[179], t71, DERIVE_FMA(P[164], t84, DERIVE_FMA(P[14], t122, P[149]*t75)))));
-    const double t228 = DERIVE_FMA(P[2], t127, DERIVE_FMA(P[1], t126, DERIVE_FNMA(P[14], t130, DERIVE_FMA(P[13], t129, DERIVE_FMA(P[12], t128, DERIVE_FMA(P[0], t125, P[3]))))));
-    const double t229 = DERIVE_FNMA(P[29], t130, DERIVE_FMA(P[28], t129, DERIVE_FMA(P[27], t128, DERIVE_FMA(P[1], t125, DERIVE_FMA(P[17], t127, DERIVE_FMA(P[16], t126, P[18]))))));
-    const double t230 = DERIVE_FNMA(P[44], t130, DERIVE_FMA(P[43], t129, DERIVE_FMA(P[42], t128, DERIVE_FMA(P[32], t127, DERIVE_FMA(P[2], t125, DERIVE_FMA(P[17], t126, P[33]))))));
-    const double t231 = DERIVE_FNMA(P[59], t130, DERIVE_FMA(P[58], t129, DERIVE_FMA(P[57], t128, DERIVE_FMA(P[3], t125, DERIVE_FMA(P[33], t127, DERIVE_FMA(P[18], t126, P[48]))))));
-    const double t232 = DERIVE_FNMA(P[74], t130, DERIVE_FMA(P[73], t129, DERIVE_FMA(P[72], t128, DERIVE_FMA(P[4], t125, DERIVE_FMA(P[34], t127, DERIVE_FMA(P[19], t126, P[49]))))));
-    const double t233 = DERIVE_FNMA(P[89], t130, DERIVE_FMA(P[88], t129, DERIVE_FMA(P[87], t128, DERIVE_FMA(P[5], t125, DERIVE_FMA(P[35], t127, DERIVE_FMA(P[20], t126, P[50]))))));
-    const double t234 = DERIVE_FMA(P[6], t125, DERIVE_FMA(P[36], t127, DERIVE_FMA(P[21], t126, DERIVE_FNMA(P[104], t130, DERIVE_FMA(P[103], t129, DERIVE_FMA(P[102], t128, P[51]))))));
-    const double t235 = DERIVE_FMA(P[7], t125, DERIVE_FMA(P[37], t127, DERIVE_FMA(P[22], t126, DERIVE_FNMA(P[119], t130, DERIVE_FMA(P[118], t129, DERIVE_FMA(P[117], t128, P[52]))))));
-    const double t236 = DERIVE_FMA(P[8], t125, DERIVE_FMA(P[38], t127, DERIVE_FMA(P[23], t126, DERIVE_FNMA(P[134], t130, DERIVE_FMA(P[133], t129, DERIVE_FMA(P[132], t128, P[53]))))));
-    const double t237 = DERIVE_FMA(P[9], t125, DERIVE_FMA(P[39], t127, DERIVE_FMA(P[24], t126, DERIVE_FNMA(P[149], t130, DERIVE_FMA(P[148], t129, DERIVE_FMA(P[147], t128, P[54]))))));
-    const double t238 = DERIVE_FMA(P[40], t127, DERIVE_FMA(P[25], t126, DERIVE_FNMA(P[164], t130, DERIVE_FMA(P[163], t129, DERIVE_FMA(P[162], t128, DERIVE_FMA(P[10], t125, P[55]))))));
-    const double t239 = DERIVE_FMA(P[41], t127, DERIVE_FMA(P[26], t126, DERIVE_FNMA(P[179], t130, DERIVE_FMA(P[178], t129, DERIVE_FMA(P[177], t128, DERIVE_FMA(P[11], t125, P[56]))))));
-    const double t240 = DERIVE_FMA(P[42], t127, DERIVE_FMA(P[27], t126, DERIVE_FNMA(P[194], t130, DERIVE_FMA(P[193], t129, DERIVE_FMA(P[192], t128, DERIVE_FMA(P[12], t125, P[57]))))));
-    const double t241 = DERIVE_FMA(P[43], t127, DERIVE_FMA(P[28], t126, DERIVE_FNMA(P[209], t130, DERIVE_FMA(P[208], t129, DERIVE_FMA(P[193], t128, DERIVE_FMA(P[13], t125, P[58]))))));
-    const double t242 = DERIVE_FMA(P[44], t127, DERIVE_FMA(P[29], t126, DERIVE_FNMA(P[224], t130, DERIVE_FMA(P[209], t129, DERIVE_FMA(P[194], t128, DERIVE_FMA(P[14], t125, P[59]))))));
-    const double t243 = DERIVE_FMA(P[2], t135, DERIVE_FMA(P[1], t134, DERIVE_FMA(P[14], t138, DERIVE_FMA(P[13], t137, DERIVE_FNMA(P[12], t136, DERIVE_FMA(P[0], t133, P[4]))))));
-    const double t244 = DERIVE_FMA(P[29], t138, DERIVE_FMA(P[28], t137, DERIVE_FNMA(P[27], t136, DERIVE_FMA(P[1], t133, DERIVE_FMA(P[17], t135, DERIVE_FMA(P[16], t134, P[19]))))));
-    const double t245 = DERIVE_FMA(P[44], t138, DERIVE_FMA(P[43], t137, DERIVE_FNMA(P[42], t136, DERIVE_FMA(P[32], t135, DERIVE_FMA(P[2], t133, DERIVE_FMA(P[17], t134, P[34]))))));
-    const double t246 = DERIVE_FMA(P[59], t138, DERIVE_FMA(P[58], t137, DERIVE_FNMA(P[57], t136, DERIVE_FMA(P[3], t133, DERIVE_FMA(P[33], t135, DERIVE_FMA(P[18], t134, P[49]))))));
-    const double t247 = DERIVE_FMA(P[74], t138, DERIVE_FMA(P[73], t137, DERIVE_FNMA(P[72], t136, DERIVE_FMA(P[4], t133, DERIVE_FMA(P[34], t135, DERIVE_FMA(P[19], t134, P[64]))))));
-    const double t248 = DERIVE_FMA(P[89], t138, DERIVE_FMA(P[88], t137, DERIVE_FNMA(P[87], t136, DERIVE_FMA(P[5], t133, DERIVE_FMA(P[35], t135, DERIVE_FMA(P[20], t134, P[65]))))));
-    const double t249 = DERIVE_FMA(P[6], t133, DERIVE_FMA(P[36], t135, DERIVE_FMA(P[21], t134, DERIVE_FMA(P[104], t138, DERIVE_FMA(P[103], t137, DERIVE_FNMA(P[102], t136, P[66]))))));
-    const double t250 = DERIVE_FMA(P[7], t133, DERIVE_FMA(P[37], t135, DERIVE_FMA(P[22], t134, DERIVE_FMA(P[119], t138, DERIVE_FMA(P[118], t137, DERIVE_FNMA(P[117], t136, P[67]))))));
-    const double t251 = DERIVE_FMA(P[8], t133, DERIVE_FMA(P[38], t135, DERIVE_FMA(P[23], t134, DERIVE_FMA(P[134], t138, DERIVE_FMA(P[133], t137, DERIVE_FNMA(P[132], t136, P[68]))))));
-    const double t252 = DERIVE_FMA(P[9], t133, DERIVE_FMA(P[39], t135, DERIVE_FMA(P[24], t134, DERIVE_FMA(P[149], t138, DERIVE_FMA(P[148], t137, DERIVE_FNMA(P[147], t136, P[69]))))));
-    const double t253 = DERIVE_FMA(P[40], t135, DERIVE_FMA(P[25], t134, DERIVE_FMA(P[164], t138, DERIVE_FMA(P[163], t137, DERIVE_FNMA(P[162], t136, DERIVE_FMA(P[10], t133, P[70]))))));
-    const double t254 = DERIVE_FMA(P[41], t135, DERIVE_FMA(P[26], t134, DERIVE_FMA(P[179], t138, DERIVE_FMA(P[178], t137, DERIVE_FNMA(P[177], t136, DERIVE_FMA(P[11], t133, P[71]))))));
-    const double t255 = DERIVE_FMA(P[42], t135, DERIVE_FMA(P[27], t134, DERIVE_FMA(P[194], t138, DERIVE_FMA(P[193], t137, DERIVE_FNMA(P[192], t136, DERIVE_FMA(P[12], t133, P[72]))))));
-    const double t256 = DERIVE_FMA(P[43], t135, DERIVE_FMA(P[28], t134, DERIVE_FMA(P[209], t138, DERIVE_FMA(P[208], t137, DERIVE_FNMA(P[193], t136, DERIVE_FMA(P[13], t133, P[73]))))));
-    const double t257 = DERIVE_FMA(P[44], t135, DERIVE_FMA(P[29], t134, DERIVE_FMA(P[224], t138, DERIVE_FMA(P[209], t137, DERIVE_FNMA(P[194], t136, DERIVE_FMA(P[14], t133, P[74]))))));
-    const double t258 = DERIVE_FMA(P[2], t143, DERIVE_FMA(P[1], t142, DERIVE_FMA(P[14], t146, DERIVE_FNMA(P[13], t145, DERIVE_FMA(P[12], t144, DERIVE_FMA(P[0], t141, P[5]))))));
-    const double t259 = DERIVE_FMA(P[29], t146, DERIVE_FNMA(P[28], t145, DERIVE_FMA(P[27], t144, DERIVE_FMA(P[1], t141, DERIVE_FMA(P[17], t143, DERIVE_FMA(P[16], t142, P[20]))))));
-    const double t260 = DERIVE_FMA(P[44], t146, DERIVE_FNMA(P[43], t145, DERIVE_FMA(P[42], t144, DERIVE_FMA(P[32], t143, DERIVE_FMA(P[2], t141, DERIVE_FMA(P[17], t142, P[35]))))));
-    const double t261 = DERIVE_FMA(P[59], t146, DERIVE_FNMA(P[58], t145, DERIVE_FMA(P[57], t144, DERIVE_FMA(P[3], t141, DERIVE_FMA(P[33], t143, DERIVE_FMA(P[18], t142, P[50]))))));
-    const double t262 = DERIVE_FMA(P[74], t146, DERIVE_FNMA(P[73], t145, DERIVE_FMA(P[72], t144, DERIVE_FMA(P[4], t141, DERIVE_FMA(P[34], t143, DERIVE_FMA(P[19], t142, P[65]))))));
-    const double t263 = DERIVE_FMA(P[89], t146, DERIVE_FNMA(P[88], t145, DERIVE_FMA(P[87], t144, DERIVE_FMA(P[5], t141, DERIVE_FMA(P[35], t143, DERIVE_FMA(P[20], t142, P[80]))))));
-    const double t264 = DERIVE_FMA(P[6], t141, DERIVE_FMA(P[36], t143, DERIVE_FMA(P[21], t142, DERIVE_FMA(P[104], t146, DERIVE_FNMA(P[103], t145, DERIVE_FMA(P[102], t144, P[81]))))));
-    const double t265 = DERIVE_FMA(P[7], t141, DERIVE_FMA(P[37], t143, DERIVE_FMA(P[22], t142, DERIVE_FMA(P[119], t146, DERIVE_FNMA(P[118], t145, DERIVE_FMA(P[117], t144, P[82]))))));
-    const double t266 = DERIVE_FMA(P[8], t141, DERIVE_FMA(P[38], t143, DERIVE_FMA(P[23], t142, DERIVE_FMA(P[134], t146, DERIVE_FNMA(P[133], t145, DERIVE_FMA(P[132], t144, P[83]))))));
-    const double t267 = DERIVE_FMA(P[9], t141, DERIVE_FMA(P[39], t143, DERIVE_FMA(P[24], t142, DERIVE_FMA(P[149], t146, DERIVE_FNMA(P[148], t145, DERIVE_FMA(P[147], t144, P[84]))))));
-    const double t268 = DERIVE_FMA(P[40], t143, DERIVE_FMA(P[25], t142, DERIVE_FMA(P[164], t146, DERIVE_FNMA(P[163], t145, DERIVE_FMA(P[162], t144, DERIVE_FMA(P[10], t141, P[85]))))));
-    const double t269 = DERIVE_FMA(P[41], t143, DERIVE_FMA(P[26], t142, DERIVE_FMA(P[179], t146, DERIVE_FNMA(P[178], t145, DERIVE_FMA(P[177], t144, DERIVE_FMA(P[11], t141, P[86]))))));
-    const double t270 = DERIVE_FMA(P[42], t143, DERIVE_FMA(P[27], t142, DERIVE_FMA(P[194], t146, DERIVE_FNMA(P[193], t145, DERIVE_FMA(P[192], t144, DERIVE_FMA(P[12], t141, P[87]))))));
-    const double t271 = DERIVE_FMA(P[43], t143, DERIVE_FMA(P[28], t142, DERIVE_FMA(P[209], t146, DERIVE_FNMA(P[208], t145, DERIVE_FMA(P[193], t144, DERIVE_FMA(P[13], t141, P[88]))))));
-    const double t272 = DERIVE_FMA(P[44], t143, DERIVE_FMA(P[29], t142, DERIVE_FMA(P[224], t146, DERIVE_FNMA(P[209], t145, DERIVE_FMA(P[194], t144, DERIVE_FMA(P[14], t141, P[89]))))));
-    const double t273 = DERIVE_FMA(P[48], p[0], P[51]);
-    const double t275 = DERIVE_FMA(P[49], p[0], P[66]);
-    const double t277 = DERIVE_FMA(P[50], p[0], P[81]);
-    const double t278 = DERIVE_FMA(P[51], p[0], P[96]);
-    const double t279 = DERIVE_FMA(P[52], p[0], P[97]);
-    const double t280 = DERIVE_FMA(P[53], p[0], P[98]);
-    const double t281 = DERIVE_FMA(P[54], p[0], P[99]);
-    const double t282 = DERIVE_FMA(P[55], p[0], P[100]);
-    const double t283 = DERIVE_FMA(P[56], p[0], P[101]);
-    const double t284 = DERIVE_FMA(P[57], p[0], P[102]);
-    const double t285 = DERIVE_FMA(P[58], p[0], P[103]);
-    const double t286 = DERIVE_FMA(P[59], p[0], P[104]);
-    const double t287 = DERIVE_FMA(P[64], p[0], P[67]);
-    const double t289 = DERIVE_FMA(P[65], p[0], P[82]);
-    const double t290 = DERIVE_FMA(P[67], p[0], P[112]);
-    const double t291 = DERIVE_FMA(P[68], p[0], P[113]);
-    const double t292 = DERIVE_FMA(P[69], p[0], P[114]);
-    const double t293 = DERIVE_FMA(P[70], p[0], P[115]);
-    const double t294 = DERIVE_FMA(P[71], p[0], P[116]);
-    const double t295 = DERIVE_FMA(P[72], p[0], P[117]);
-    const double t296 = DERIVE_FMA(P[73], p[0], P[118]);
-    const double t297 = DERIVE_FMA(P[74], p[0], P[119]);
-    const double t298 = DERIVE_FMA(P[80], p[0], P[83]);
-    const double t299 = DERIVE_FMA(P[83], p[0], P[128]);
-    const double t300 = DERIVE_FMA(P[84], p[0], P[129]);
-    const double t301 = DERIVE_FMA(P[85], p[0], P[130]);
-    const double t302 = DERIVE_FMA(P[86], p[0], P[131]);
-    const double t303 = DERIVE_FMA(P[87], p[0], P[132]);
-    const double t304 = DERIVE_FMA(P[88], p[0], P[133]);
-    const double t305 = DERIVE_FMA(P[89], p[0], P[134]);
-    const double t306 = DERIVE_FMA(t193, t76, DERIVE_FMA(t191, t73, DERIVE_FMA(t189, t71, DERIVE_FMA(t117, t182, DERIVE_FMA(t116, t181, t115*t180)))));
-    const double t307 = DERIVE_FMA(t193, t83, DERIVE_FMA(t191, t71, DERIVE_FMA(t189, t77, DERIVE_FMA(t121, t182, DERIVE_FMA(t120, t181, t118*t180)))));
-    const double t308 = DERIVE_FMA(t193, t71, DERIVE_FMA(t191, t84, DERIVE_FMA(t189, t75, DERIVE_FMA(t124, t182, DERIVE_FMA(t123, t181, t122*t180)))));
-    const double t309 = DERIVE_FNMA(t130, t196, DERIVE_FMA(t129, t195, DERIVE_FMA(t128, t194, DERIVE_FMA(t127, t182, DERIVE_FMA(t126, t181, DERIVE_FMA(t125, t180, t183))))));
-    const double t310 = DERIVE_FMA(t138, t196, DERIVE_FMA(t137, t195, DERIVE_FNMA(t136, t194, DERIVE_FMA(t135, t182, DERIVE_FMA(t134, t181, DERIVE_FMA(t133, t180, t184))))));
-    const double t311 = DERIVE_FMA(t146, t196, DERIVE_FNMA(t145, t195, DERIVE_FMA(t144, t194, DERIVE_FMA(t143, t182, DERIVE_FMA(t142, t181, DERIVE_FMA(t141, t180, t185))))));
-    const double t312 = DERIVE_FMA(p[0], t183, t186);
-    const double t313 = DERIVE_FMA(p[0], t184, t187);
-    const double t314 = DERIVE_FMA(p[0], t185, t188);
-    const double t315 = DERIVE_FMA(t209, t83, DERIVE_FMA(t207, t71, DERIVE_FMA(t206, t77, DERIVE_FMA(t121, t199, DERIVE_FMA(t120, t198, t118*t197)))));
-    const double t316 = DERIVE_FMA(t209, t71, DERIVE_FMA(t207, t84, DERIVE_FMA(t206, t75, DERIVE_FMA(t124, t199, DERIVE_FMA(t123, t198, t122*t197)))));
-    const double t317 = DERIVE_FNMA(t130, t212, DERIVE_FMA(t129, t211, DERIVE_FMA(t128, t210, DERIVE_FMA(t127, t199, DERIVE_FMA(t126, t198, DERIVE_FMA(t125, t197, t200))))));
-    const double t318 = DERIVE_FMA(t138, t212, DERIVE_FMA(t137, t211, DERIVE_FNMA(t136, t210, DERIVE_FMA(t135, t199, DERIVE_FMA(t134, t198, DERIVE_FMA(t133, t197, t201))))));
-    const double t319 = DERIVE_FMA(t146, t212, DERIVE_FNMA(t145, t211, DERIVE_FMA(t144, t210, DERIVE_FMA(t143, t199, DERIVE_FMA(t142, t198, DERIVE_FMA(t141, t197, t202))))));
-    const double t320 = DERIVE_FMA(p[0], t200, t203);
-    const double t321 = DERIVE_FMA(p[0], t201, t204);
-    const double t322 = DERIVE_FMA(p[0], t202, t205);
-    const double t323 = DERIVE_FMA(t224, t71, DERIVE_FMA(t223, t84, DERIVE_FMA(t222, t75, DERIVE_FMA(t124, t215, DERIVE_FMA(t123, t214, t122*t213)))));
-    const double t324 = DERIVE_FNMA(t130, t227, DERIVE_FMA(t129, t226, DERIVE_FMA(t128, t225, DERIVE_FMA(t127, t215, DERIVE_FMA(t126, t214, DERIVE_FMA(t125, t213, t216))))));
-    const double t325 = DERIVE_FMA(t138, t227, DERIVE_FMA(t137, t226, DERIVE_FNMA(t136, t225, DERIVE_FMA(t135, t215, DERIVE_FMA(t134, t214, DERIVE_FMA(t133, t213, t217))))));
-    const double t326 = DERIVE_FMA(t146, t227, DERIVE_FNMA(t145, t226, DERIVE_FMA(t144, t225, DERIVE_FMA(t143, t215, DERIVE_FMA(t142, t214, DERIVE_FMA(t141, t213, t218))))));
-    const double t327 = DERIVE_FMA(p[0], t216, t219);
-    const double t328 = DERIVE_FMA(p[0], t217, t220);
-    const double t329 = DERIVE_FMA(p[0], t218, t221);
-    const double t330 = DERIVE_FNMA(t130, t242, DERIVE_FMA(t129, t241, DERIVE_FMA(t128, t240, DERIVE_FMA(t127, t230, DERIVE_FMA(t126, t229, DERIVE_FMA(t125, t228, t231))))));
-    const double t331 = DERIVE_FMA(t138, t242, DERIVE_FMA(t137, t241, DERIVE_FNMA(t136, t240, DERIVE_FMA(t135, t230, DERIVE_FMA(t134, t229, DERIVE_FMA(t133, t228, t232))))));
-    const double t332 = DERIVE_FMA(t146, t242, DERIVE_FNMA(t145, t241, DERIVE_FMA(t144, t240, DERIVE_FMA(t143, t230, DERIVE_FMA(t142, t229, DERIVE_FMA(t141, t228, t233))))));
-    const double t333 = DERIVE_FMA(p[0], t231, t234);
-    const double t334 = DERIVE_FMA(p[0], t232, t235);
-    const double t335 = DERIVE_FMA(p[0], t233, t236);
-    const double t336 = DERIVE_FMA(t138, t257, DERIVE_FMA(t137, t256, DERIVE_FNMA(t136, t255, DERIVE_FMA(t135, t245, DERIVE_FMA(t134, t244, DERIVE_FMA(t133, t243, t247))))));
-    const double t337 = DERIVE_FMA(t146, t257, DERIVE_FNMA(t145, t256, DERIVE_FMA(t144, t255, DERIVE_FMA(t143, t245, DERIVE_FMA(t142, t244, DERIVE_FMA(t141, t243, t248))))));
-    const double t338 = DERIVE_FMA(p[0], t246, t249);
-    const double t339 = DERIVE_FMA(p[0], t247, t250);
-    const double t340 = DERIVE_FMA(p[0], t248, t251);
-    const double t341 = DERIVE_FMA(t146, t272, DERIVE_FNMA(t145, t271, DERIVE_FMA(t144, t270, DERIVE_FMA(t143, t260, DERIVE_FMA(t142, t259, DERIVE_FMA(t141, t258, t263))))));
-    const double t342 = DERIVE_FMA(p[0], t261, t264);
-    const double t343 = DERIVE_FMA(p[0], t262, t265);
-    const double t344 = DERIVE_FMA(p[0], t263, t266);
-    const double t345 = DERIVE_FMA(p[0], t273, t278);
-    const double t346 = DERIVE_FMA(p[0], t275, t279);
-    const double t347 = DERIVE_FMA(p[0], t277, t280);
-    const double t348 = DERIVE_FMA(p[0], t287, t290);
-    const double t349 = DERIVE_FMA(p[0], t289, t291);
-    const double t350 = DERIVE_FMA(p[0], t298, t299);
-    const double t351 = t166 + t306;
-    const double t352 = t167 + t307;
-    const double t353 = t168 + t308;
-    const double t354 = t169 + t315;
-    const double t355 = t170 + t316;
-    const double t356 = t171 + t323;
-    const double t357 = t172 + t330;
-    const double t358 = t173 + t331;
-    const double t359 = t174 + t332;
-    const double t360 = t175 + t336;
-    const double t361 = t176 + t337;
-    const double t362 = t177 + t341;
-    const double t363 = P[144] + t178;
-    const double t364 = P[160] + t178;
-    const double t365 = P[176] + t178;
-    const double t366 = P[192] + t179;
-    const double t367 = P[208] + t179;
-    const double t368 = P[224] + t179;
-    const double t369 = DERIVE_FMA(t108, t108, DERIVE_FMA(t107, t107, DERIVE_FMA(t106, t106, t105*t105)));
-    const double t370 = 1.0/sqrt(t369);
-    const double t371 = t105*t370;
-    const double t372 = t106*t370;
-    const double t373 = t107*t370;
-    const double t374 = t108*t370;
-    x_new[0] = t371;
-    x_new[1] = t372;
-    x_new[2] = t373;
-    x_new[3] = t374;
+    const double t180 = DERIVE_FMA(t108, t108, DERIVE_FMA(t107, t107, DERIVE_FMA(t106, t106, t105*t105)));
+    const double t181 = 1.0/sqrt(t180);
+    const double t182 = t105*t181;
+    const double t183 = t106*t181;
+    const double t184 = t107*t181;
+    const double t185 = t108*t181;
+    const double t186 = -t130;
+    const double t187 = -t136;
+    const double t188 = -t145;
+    #if DERIVE_VECTOR
+    const derive_vd v_t189_0 = (((derive_vd){t115, t115, t115, t115}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t189_1 = DERIVE_VFMA(((derive_vd){t116, t116, t116, t116}), ((derive_vd){P[15], P[16], P[17], P[18]}), v_t189_0);
+    const derive_vd v_t189_2 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){P[30], P[31], P[32], P[33]}), v_t189_1);
+    const derive_vd v_t189_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[135], P[136], P[137], P[138]}), v_t189_2);
+    const derive_vd v_t189_4 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[150], P[151], P[152], P[153]}), v_t189_3);
+    const derive_vd v_t189 = DERIVE_VFMA(((derive_vd){t76, t76, t76, t76}), ((derive_vd){P[165], P[166], P[167], P[168]}), v_t189_4);
+    const double t189 = v_t189[0];
+    const double t190 = v_t189[1];
+    const double t191 = v_t189[2];
+    #else
+    const double t189 = DERIVE_FMA(t76, P[165], DERIVE_FMA(t73, P[150], DERIVE_FMA(t71, P[135], DERIVE_FMA(t117, P[30], DERIVE_FMA(t116, P[15], t115*P[0])))));
+    const double t190 = DERIVE_FMA(t76, P[166], DERIVE_FMA(t73, P[151], DERIVE_FMA(t71, P[136], DERIVE_FMA(t117, P[31], DERIVE_FMA(t116, P[16], t115*P[1])))));
+    const double t191 = DERIVE_FMA(t76, P[167], DERIVE_FMA(t73, P[152], DERIVE_FMA(t71, P[137], DERIVE_FMA(t117, P[32], DERIVE_FMA(t116, P[17], t115*P[2])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t193_0 = (((derive_vd){t115, t115, t115, t115}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t193_1 = DERIVE_VFMA(((derive_vd){t116, t116, t116, t116}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t193_0);
+    const derive_vd v_t193_2 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){P[38], P[39], P[40], P[41]}), v_t193_1);
+    const derive_vd v_t193_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[143], P[144], P[145], P[146]}), v_t193_2);
+    const derive_vd v_t193_4 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[158], P[159], P[160], P[161]}), v_t193_3);
+    const derive_vd v_t193 = DERIVE_VFMA(((derive_vd){t76, t76, t76, t76}), ((derive_vd){P[173], P[174], P[175], P[176]}), v_t193_4);
+    const double t194 = v_t193[1];
+    const double t195 = v_t193[2];
+    const double t196 = v_t193[3];
+    #else
+    const double t194 = DERIVE_FMA(t76, P[174], DERIVE_FMA(t73, P[159], DERIVE_FMA(t71, P[144], DERIVE_FMA(t117, P[39], DERIVE_FMA(t116, P[24], t115*P[9])))));
+    const double t195 = DERIVE_FMA(t76, P[175], DERIVE_FMA(t73, P[160], DERIVE_FMA(t71, P[145], DERIVE_FMA(t117, P[40], DERIVE_FMA(t116, P[25], t115*P[10])))));
+    const double t196 = DERIVE_FMA(t76, P[176], DERIVE_FMA(t73, P[161], DERIVE_FMA(t71, P[146], DERIVE_FMA(t117, P[41], DERIVE_FMA(t116, P[26], t115*P[11])))));
+    P_new[9] = t194;
+    P_new[135] = t194;
+    P_new[10] = t195;
+    P_new[150] = t195;
+    P_new[11] = t196;
+    P_new[165] = t196;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t197_0 = (((derive_vd){t115, t115, t115, t115}) * ((derive_vd){P[11], P[12], P[13], P[14]}));
+    const derive_vd v_t197_1 = DERIVE_VFMA(((derive_vd){t116, t116, t116, t116}), ((derive_vd){P[26], P[27], P[28], P[29]}), v_t197_0);
+    const derive_vd v_t197_2 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){P[41], P[42], P[43], P[44]}), v_t197_1);
+    const derive_vd v_t197_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[146], P[147], P[148], P[149]}), v_t197_2);
+    const derive_vd v_t197_4 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[161], P[162], P[163], P[164]}), v_t197_3);
+    const derive_vd v_t197 = DERIVE_VFMA(((derive_vd){t76, t76, t76, t76}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t197_4);
+    const double t198 = v_t197[1];
+    const double t199 = v_t197[2];
+    const double t200 = v_t197[3];
+    #else
+    const double t198 = DERIVE_FMA(t76, P[177], DERIVE_FMA(t73, P[162], DERIVE_FMA(t71, P[147], DERIVE_FMA(t117, P[42], DERIVE_FMA(t116, P[27], t115*P[12])))));
+    const double t199 = DERIVE_FMA(t76, P[178], DERIVE_FMA(t73, P[163], DERIVE_FMA(t71, P[148], DERIVE_FMA(t117, P[43], DERIVE_FMA(t116, P[28], t115*P[13])))));
+    const double t200 = DERIVE_FMA(t76, P[179], DERIVE_FMA(t73, P[164], DERIVE_FMA(t71, P[149], DERIVE_FMA(t117, P[44], DERIVE_FMA(t116, P[29], t115*P[14])))));
+    P_new[12] = t198;
+    P_new[180] = t198;
+    P_new[13] = t199;
+    P_new[195] = t199;
+    P_new[14] = t200;
+    P_new[210] = t200;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t201_0 = (((derive_vd){t118, t118, t118, t118}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t201_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){P[15], P[16], P[17], P[18]}), v_t201_0);
+    const derive_vd v_t201_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){P[30], P[31], P[32], P[33]}), v_t201_1);
+    const derive_vd v_t201_3 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[135], P[136], P[137], P[138]}), v_t201_2);
+    const derive_vd v_t201_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[150], P[151], P[152], P[153]}), v_t201_3);
+    const derive_vd v_t201 = DERIVE_VFMA(((derive_vd){t83, t83, t83, t83}), ((derive_vd){P[165], P[166], P[167], P[168]}), v_t201_4);
+    const double t201 = v_t201[0];
+    const double t202 = v_t201[1];
+    const double t203 = v_t201[2];
+    #else
+    const double t201 = DERIVE_FMA(t83, P[165], DERIVE_FMA(t71, P[150], DERIVE_FMA(t77, P[135], DERIVE_FMA(t121, P[30], DERIVE_FMA(t120, P[15], t118*P[0])))));
+    const double t202 = DERIVE_FMA(t83, P[166], DERIVE_FMA(t71, P[151], DERIVE_FMA(t77, P[136], DERIVE_FMA(t121, P[31], DERIVE_FMA(t120, P[16], t118*P[1])))));
+    const double t203 = DERIVE_FMA(t83, P[167], DERIVE_FMA(t71, P[152], DERIVE_FMA(t77, P[137], DERIVE_FMA(t121, P[32], DERIVE_FMA(t120, P[17], t118*P[2])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t205_0 = (((derive_vd){t118, t118, t118, t118}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t205_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t205_0);
+    const derive_vd v_t205_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){P[38], P[39], P[40], P[41]}), v_t205_1);
+    const derive_vd v_t205_3 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[143], P[144], P[145], P[146]}), v_t205_2);
+    const derive_vd v_t205_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[158], P[159], P[160], P[161]}), v_t205_3);
+    const derive_vd v_t205 = DERIVE_VFMA(((derive_vd){t83, t83, t83, t83}), ((derive_vd){P[173], P[174], P[175], P[176]}), v_t205_4);
+    const double t206 = v_t205[1];
+    const double t207 = v_t205[2];
+    const double t208 = v_t205[3];
+    #else
+    const double t206 = DERIVE_FMA(t83, P[174], DERIVE_FMA(t71, P[159], DERIVE_FMA(t77, P[144], DERIVE_FMA(t121, P[39], DERIVE_FMA(t120, P[24], t118*P[9])))));
+    const double t207 = DERIVE_FMA(t83, P[175], DERIVE_FMA(t71, P[160], DERIVE_FMA(t77, P[145], DERIVE_FMA(t121, P[40], DERIVE_FMA(t120, P[25], t118*P[10])))));
+    const double t208 = DERIVE_FMA(t83, P[176], DERIVE_FMA(t71, P[161], DERIVE_FMA(t77, P[146], DERIVE_FMA(t121, P[41], DERIVE_FMA(t120, P[26], t118*P[11])))));
+    P_new[24] = t206;
+    P_new[136] = t206;
+    P_new[25] = t207;
+    P_new[151] = t207;
+    P_new[26] = t208;
+    P_new[166] = t208;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t209_0 = (((derive_vd){t118, t118, t118, t118}) * ((derive_vd){P[11], P[12], P[13], P[14]}));
+    const derive_vd v_t209_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){P[26], P[27], P[28], P[29]}), v_t209_0);
+    const derive_vd v_t209_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){P[41], P[42], P[43], P[44]}), v_t209_1);
+    const derive_vd v_t209_3 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[146], P[147], P[148], P[149]}), v_t209_2);
+    const derive_vd v_t209_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[161], P[162], P[163], P[164]}), v_t209_3);
+    const derive_vd v_t209 = DERIVE_VFMA(((derive_vd){t83, t83, t83, t83}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t209_4);
+    const double t210 = v_t209[1];
+    const double t211 = v_t209[2];
+    const double t212 = v_t209[3];
+    *(derive_vd_unaligned *)&P_new[24] = ((derive_vd){t206, t207, t208, t210});
+    #else
+    const double t210 = DERIVE_FMA(t83, P[177], DERIVE_FMA(t71, P[162], DERIVE_FMA(t77, P[147], DERIVE_FMA(t121, P[42], DERIVE_FMA(t120, P[27], t118*P[12])))));
+    const double t211 = DERIVE_FMA(t83, P[178], DERIVE_FMA(t71, P[163], DERIVE_FMA(t77, P[148], DERIVE_FMA(t121, P[43], DERIVE_FMA(t120, P[28], t118*P[13])))));
+    const double t212 = DERIVE_FMA(t83, P[179], DERIVE_FMA(t71, P[164], DERIVE_FMA(t77, P[149], DERIVE_FMA(t121, P[44], DERIVE_FMA(t120, P[29], t118*P[14])))));
+    P_new[27] = t210;
+    P_new[181] = t210;
+    P_new[28] = t211;
+    P_new[196] = t211;
+    P_new[29] = t212;
+    P_new[211] = t212;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t213_0 = (((derive_vd){t122, t122, t122, t122}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t213_1 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){P[15], P[16], P[17], P[18]}), v_t213_0);
+    const derive_vd v_t213_2 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){P[30], P[31], P[32], P[33]}), v_t213_1);
+    const derive_vd v_t213_3 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[135], P[136], P[137], P[138]}), v_t213_2);
+    const derive_vd v_t213_4 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[150], P[151], P[152], P[153]}), v_t213_3);
+    const derive_vd v_t213 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[165], P[166], P[167], P[168]}), v_t213_4);
+    const double t213 = v_t213[0];
+    const double t214 = v_t213[1];
+    const double t215 = v_t213[2];
+    #else
+    const double t213 = DERIVE_FMA(t71, P[165], DERIVE_FMA(t84, P[150], DERIVE_FMA(t75, P[135], DERIVE_FMA(t124, P[30], DERIVE_FMA(t123, P[15], t122*P[0])))));
+    const double t214 = DERIVE_FMA(t71, P[166], DERIVE_FMA(t84, P[151], DERIVE_FMA(t75, P[136], DERIVE_FMA(t124, P[31], DERIVE_FMA(t123, P[16], t122*P[1])))));
+    const double t215 = DERIVE_FMA(t71, P[167], DERIVE_FMA(t84, P[152], DERIVE_FMA(t75, P[137], DERIVE_FMA(t124, P[32], DERIVE_FMA(t123, P[17], t122*P[2])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t217_0 = (((derive_vd){t122, t122, t122, t122}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t217_1 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t217_0);
+    const derive_vd v_t217_2 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){P[38], P[39], P[40], P[41]}), v_t217_1);
+    const derive_vd v_t217_3 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[143], P[144], P[145], P[146]}), v_t217_2);
+    const derive_vd v_t217_4 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[158], P[159], P[160], P[161]}), v_t217_3);
+    const derive_vd v_t217 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[173], P[174], P[175], P[176]}), v_t217_4);
+    const double t218 = v_t217[1];
+    const double t219 = v_t217[2];
+    const double t220 = v_t217[3];
+    #else
+    const double t218 = DERIVE_FMA(t71, P[174], DERIVE_FMA(t84, P[159], DERIVE_FMA(t75, P[144], DERIVE_FMA(t124, P[39], DERIVE_FMA(t123, P[24], t122*P[9])))));
+    const double t219 = DERIVE_FMA(t71, P[175], DERIVE_FMA(t84, P[160], DERIVE_FMA(t75, P[145], DERIVE_FMA(t124, P[40], DERIVE_FMA(t123, P[25], t122*P[10])))));
+    const double t220 = DERIVE_FMA(t71, P[176], DERIVE_FMA(t84, P[161], DERIVE_FMA(t75, P[146], DERIVE_FMA(t124, P[41], DERIVE_FMA(t123, P[26], t122*P[11])))));
+    P_new[39] = t218;
+    P_new[137] = t218;
+    P_new[40] = t219;
+    P_new[152] = t219;
+    P_new[41] = t220;
+    P_new[167] = t220;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t221_0 = (((derive_vd){t122, t122, t122, t122}) * ((derive_vd){P[11], P[12], P[13], P[14]}));
+    const derive_vd v_t221_1 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){P[26], P[27], P[28], P[29]}), v_t221_0);
+    const derive_vd v_t221_2 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){P[41], P[42], P[43], P[44]}), v_t221_1);
+    const derive_vd v_t221_3 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[146], P[147], P[148], P[149]}), v_t221_2);
+    const derive_vd v_t221_4 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[161], P[162], P[163], P[164]}), v_t221_3);
+    const derive_vd v_t221 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t221_4);
+    const double t222 = v_t221[1];
+    const double t223 = v_t221[2];
+    const double t224 = v_t221[3];
+    *(derive_vd_unaligned *)&P_new[40] = ((derive_vd){t219, t220, t222, t223});
+    #else
+    const double t222 = DERIVE_FMA(t71, P[177], DERIVE_FMA(t84, P[162], DERIVE_FMA(t75, P[147], DERIVE_FMA(t124, P[42], DERIVE_FMA(t123, P[27], t122*P[12])))));
+    const double t223 = DERIVE_FMA(t71, P[178], DERIVE_FMA(t84, P[163], DERIVE_FMA(t75, P[148], DERIVE_FMA(t124, P[43], DERIVE_FMA(t123, P[28], t122*P[13])))));
+    const double t224 = DERIVE_FMA(t71, P[179], DERIVE_FMA(t84, P[164], DERIVE_FMA(t75, P[149], DERIVE_FMA(t124, P[44], DERIVE_FMA(t123, P[29], t122*P[14])))));
+    P_new[42] = t222;
+    P_new[182] = t222;
+    P_new[43] = t223;
+    P_new[197] = t223;
+    P_new[44] = t224;
+    P_new[212] = t224;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t225_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[45], P[46], P[47], P[48]}));
+    const derive_vd v_t225_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[15], P[16], P[17], P[18]}), v_t225_0);
+    const derive_vd v_t225_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[30], P[31], P[32], P[33]}), v_t225_1);
+    const derive_vd v_t225_3 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[180], P[181], P[182], P[183]}), v_t225_2);
+    const derive_vd v_t225_4 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[195], P[196], P[197], P[198]}), v_t225_3);
+    const derive_vd v_t225 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[210], P[211], P[212], P[213]}), v_t225_4);
+    const double t225 = v_t225[0];
+    const double t226 = v_t225[1];
+    const double t227 = v_t225[2];
+    const double t228 = v_t225[3];
+    #else
+    const double t225 = DERIVE_FMA(t186, P[210], DERIVE_FMA(t129, P[195], DERIVE_FMA(t128, P[180], DERIVE_FMA(t127, P[30], DERIVE_FMA(t126, P[15], DERIVE_FMA(t125, P[0], P[45]))))));
+    const double t226 = DERIVE_FMA(t186, P[211], DERIVE_FMA(t129, P[196], DERIVE_FMA(t128, P[181], DERIVE_FMA(t127, P[31], DERIVE_FMA(t126, P[16], DERIVE_FMA(t125, P[1], P[46]))))));
+    const double t227 = DERIVE_FMA(t186, P[212], DERIVE_FMA(t129, P[197], DERIVE_FMA(t128, P[182], DERIVE_FMA(t127, P[32], DERIVE_FMA(t126, P[17], DERIVE_FMA(t125, P[2], P[47]))))));
+    const double t228 = DERIVE_FMA(t186, P[213], DERIVE_FMA(t129, P[198], DERIVE_FMA(t128, P[183], DERIVE_FMA(t127, P[33], DERIVE_FMA(t126, P[18], DERIVE_FMA(t125, P[3], P[48]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t229_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[53], P[54], P[55], P[56]}));
+    const derive_vd v_t229_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t229_0);
+    const derive_vd v_t229_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[38], P[39], P[40], P[41]}), v_t229_1);
+    const derive_vd v_t229_3 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t229_2);
+    const derive_vd v_t229_4 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[203], P[204], P[205], P[206]}), v_t229_3);
+    const derive_vd v_t229 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[218], P[219], P[220], P[221]}), v_t229_4);
+    const double t230 = v_t229[1];
+    const double t231 = v_t229[2];
+    const double t232 = v_t229[3];
+    #else
+    const double t230 = DERIVE_FMA(t186, P[219], DERIVE_FMA(t129, P[204], DERIVE_FMA(t128, P[189], DERIVE_FMA(t127, P[39], DERIVE_FMA(t126, P[24], DERIVE_FMA(t125, P[9], P[54]))))));
+    const double t231 = DERIVE_FMA(t186, P[220], DERIVE_FMA(t129, P[205], DERIVE_FMA(t128, P[190], DERIVE_FMA(t127, P[40], DERIVE_FMA(t126, P[25], DERIVE_FMA(t125, P[10], P[55]))))));
+    const double t232 = DERIVE_FMA(t186, P[221], DERIVE_FMA(t129, P[206], DERIVE_FMA(t128, P[191], DERIVE_FMA(t127, P[41], DERIVE_FMA(t126, P[26], DERIVE_FMA(t125, P[11], P[56]))))));
+    P_new[54] = t230;
+    P_new[138] = t230;
+    P_new[55] = t231;
+    P_new[153] = t231;
+    P_new[56] = t232;
+    P_new[168] = t232;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t233_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[11], P[12], P[13], P[14]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t233_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[26], P[27], P[28], P[29]}), v_t233_0);
+    const derive_vd v_t233_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[41], P[42], P[43], P[44]}), v_t233_1);
+    const derive_vd v_t233_3 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){P[191], P[192], P[193], P[194]}), v_t233_2);
+    const derive_vd v_t233_4 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){P[206], P[207], P[208], P[209]}), v_t233_3);
+    const derive_vd v_t233 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[221], P[222], P[223], P[224]}), v_t233_4);
+    const double t234 = v_t233[1];
+    const double t235 = v_t233[2];
+    const double t236 = v_t233[3];
+    *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t232, t234, t235, t236});
+    *(derive_vd_unaligned *)&P_new[180] = ((derive_vd){t198, t210, t222, t234});
+    #else
+    const double t234 = DERIVE_FMA(t186, P[222], DERIVE_FMA(t129, P[207], DERIVE_FMA(t128, P[192], DERIVE_FMA(t127, P[42], DERIVE_FMA(t126, P[27], DERIVE_FMA(t125, P[12], P[57]))))));
+    const double t235 = DERIVE_FMA(t186, P[223], DERIVE_FMA(t129, P[208], DERIVE_FMA(t128, P[193], DERIVE_FMA(t127, P[43], DERIVE_FMA(t126, P[28], DERIVE_FMA(t125, P[13], P[58]))))));
+    const double t236 = DERIVE_FMA(t186, P[224], DERIVE_FMA(t129, P[209], DERIVE_FMA(t128, P[194], DERIVE_FMA(t127, P[44], DERIVE_FMA(t126, P[29], DERIVE_FMA(t125, P[14], P[59]))))));
+    P_new[57] = t234;
+    P_new[183] = t234;
+    P_new[58] = t235;
+    P_new[198] = t235;
+    P_new[59] = t236;
+    P_new[213] = t236;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t237_0 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t237_1 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[15], P[16], P[17], P[18]}), v_t237_0);
+    const derive_vd v_t237_2 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[30], P[31], P[32], P[33]}), v_t237_1);
+    const derive_vd v_t237_3 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), ((derive_vd){P[180], P[181], P[182], P[183]}), v_t237_2);
+    const derive_vd v_t237_4 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[195], P[196], P[197], P[198]}), v_t237_3);
+    const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[210], P[211], P[212], P[213]}), v_t237_4);
+    const double t237 = v_t237[0];
+    const double t238 = v_t237[1];
+    const double t239 = v_t237[2];
+    const double t240 = v_t237[3];
+    #else
+    const double t237 = DERIVE_FMA(t138, P[210], DERIVE_FMA(t137, P[195], DERIVE_FMA(t187, P[180], DERIVE_FMA(t135, P[30], DERIVE_FMA(t134, P[15], DERIVE_FMA(t133, P[0], P[60]))))));
+    const double t238 = DERIVE_FMA(t138, P[211], DERIVE_FMA(t137, P[196], DERIVE_FMA(t187, P[181], DERIVE_FMA(t135, P[31], DERIVE_FMA(t134, P[16], DERIVE_FMA(t133, P[1], P[61]))))));
+    const double t239 = DERIVE_FMA(t138, P[212], DERIVE_FMA(t137, P[197], DERIVE_FMA(t187, P[182], DERIVE_FMA(t135, P[32], DERIVE_FMA(t134, P[17], DERIVE_FMA(t133, P[2], P[62]))))));
+    const double t240 = DERIVE_FMA(t138, P[213], DERIVE_FMA(t137, P[198], DERIVE_FMA(t187, P[183], DERIVE_FMA(t135, P[33], DERIVE_FMA(t134, P[18], DERIVE_FMA(t133, P[3], P[63]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t241_0 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t241_1 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[19], P[20], P[21], P[22]}), v_t241_0);
+    const derive_vd v_t241_2 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[34], P[35], P[36], P[37]}), v_t241_1);
+    const derive_vd v_t241_3 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t241_2);
+    const derive_vd v_t241_4 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[199], P[200], P[201], P[202]}), v_t241_3);
+    const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[214], P[215], P[216], P[217]}), v_t241_4);
+    const double t241 = v_t241[0];
+    #else
+    const double t241 = DERIVE_FMA(t138, P[214], DERIVE_FMA(t137, P[199], DERIVE_FMA(t187, P[184], DERIVE_FMA(t135, P[34], DERIVE_FMA(t134, P[19], DERIVE_FMA(t133, P[4], P[64]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t245_0 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t245_1 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t245_0);
+    const derive_vd v_t245_2 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[38], P[39], P[40], P[41]}), v_t245_1);
+    const derive_vd v_t245_3 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t245_2);
+    const derive_vd v_t245_4 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[203], P[204], P[205], P[206]}), v_t245_3);
+    const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[218], P[219], P[220], P[221]}), v_t245_4);
+    const double t246 = v_t245[1];
+    const double t247 = v_t245[2];
+    const double t248 = v_t245[3];
+    *(derive_vd_unaligned *)&P_new[136] = ((derive_vd){t206, t218, t230, t246});
+    #else
+    const double t246 = DERIVE_FMA(t138, P[219], DERIVE_FMA(t137, P[204], DERIVE_FMA(t187, P[189], DERIVE_FMA(t135, P[39], DERIVE_FMA(t134, P[24], DERIVE_FMA(t133, P[9], P[69]))))));
+    const double t247 = DERIVE_FMA(t138, P[220], DERIVE_FMA(t137, P[205], DERIVE_FMA(t187, P[190], DERIVE_FMA(t135, P[40], DERIVE_FMA(t134, P[25], DERIVE_FMA(t133, P[10], P[70]))))));
+    const double t248 = DERIVE_FMA(t138, P[221], DERIVE_FMA(t137, P[206], DERIVE_FMA(t187, P[191], DERIVE_FMA(t135, P[41], DERIVE_FMA(t134, P[26], DERIVE_FMA(t133, P[11], P[71]))))));
+    P_new[69] = t246;
+    P_new[139] = t246;
+    P_new[70] = t247;
+    P_new[154] = t247;
+    P_new[71] = t248;
+    P_new[169] = t248;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t249_0 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[11], P[12], P[13], P[14]}), ((derive_vd){P[71], P[72], P[73], P[74]}));
+    const derive_vd v_t249_1 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[26], P[27], P[28], P[29]}), v_t249_0);
+    const derive_vd v_t249_2 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[41], P[42], P[43], P[44]}), v_t249_1);
+    const derive_vd v_t249_3 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), ((derive_vd){P[191], P[192], P[193], P[194]}), v_t249_2);
+    const derive_vd v_t249_4 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[206], P[207], P[208], P[209]}), v_t249_3);
+    const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[221], P[222], P[223], P[224]}), v_t249_4);
+    const double t250 = v_t249[1];
+    const double t251 = v_t249[2];
+    const double t252 = v_t249[3];
+    *(derive_vd_unaligned *)&P_new[196] = ((derive_vd){t211, t223, t235, t251});
+    #else
+    const double t250 = DERIVE_FMA(t138, P[222], DERIVE_FMA(t137, P[207], DERIVE_FMA(t187, P[192], DERIVE_FMA(t135, P[42], DERIVE_FMA(t134, P[27], DERIVE_FMA(t133, P[12], P[72]))))));
+    const double t251 = DERIVE_FMA(t138, P[223], DERIVE_FMA(t137, P[208], DERIVE_FMA(t187, P[193], DERIVE_FMA(t135, P[43], DERIVE_FMA(t134, P[28], DERIVE_FMA(t133, P[13], P[73]))))));
+    const double t252 = DERIVE_FMA(t138, P[224], DERIVE_FMA(t137, P[209], DERIVE_FMA(t187, P[194], DERIVE_FMA(t135, P[44], DERIVE_FMA(t134, P[29], DERIVE_FMA(t133, P[14], P[74]))))));
+    P_new[72] = t250;
+    P_new[184] = t250;
+    P_new[73] = t251;
+    P_new[199] = t251;
+    P_new[74] = t252;
+    P_new[214] = t252;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t253_0 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[75], P[76], P[77], P[78]}));
+    const derive_vd v_t253_1 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[15], P[16], P[17], P[18]}), v_t253_0);
+    const derive_vd v_t253_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[30], P[31], P[32], P[33]}), v_t253_1);
+    const derive_vd v_t253_3 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[180], P[181], P[182], P[183]}), v_t253_2);
+    const derive_vd v_t253_4 = DERIVE_VFMA(((derive_vd){t188, t188, t188, t188}), ((derive_vd){P[195], P[196], P[197], P[198]}), v_t253_3);
+    const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[210], P[211], P[212], P[213]}), v_t253_4);
+    const double t253 = v_t253[0];
+    const double t254 = v_t253[1];
+    const double t255 = v_t253[2];
+    const double t256 = v_t253[3];
+    #else
+    const double t253 = DERIVE_FMA(t146, P[210], DERIVE_FMA(t188, P[195], DERIVE_FMA(t144, P[180], DERIVE_FMA(t143, P[30], DERIVE_FMA(t142, P[15], DERIVE_FMA(t141, P[0], P[75]))))));
+    const double t254 = DERIVE_FMA(t146, P[211], DERIVE_FMA(t188, P[196], DERIVE_FMA(t144, P[181], DERIVE_FMA(t143, P[31], DERIVE_FMA(t142, P[16], DERIVE_FMA(t141, P[1], P[76]))))));
+    const double t255 = DERIVE_FMA(t146, P[212], DERIVE_FMA(t188, P[197], DERIVE_FMA(t144, P[182], DERIVE_FMA(t143, P[32], DERIVE_FMA(t142, P[17], DERIVE_FMA(t141, P[2], P[77]))))));
+    const double t256 = DERIVE_FMA(t146, P[213], DERIVE_FMA(t188, P[198], DERIVE_FMA(t144, P[183], DERIVE_FMA(t143, P[33], DERIVE_FMA(t142, P[18], DERIVE_FMA(t141, P[3], P[78]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t257_0 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[79], P[80], P[81], P[82]}));
+    const derive_vd v_t257_1 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[19], P[20], P[21], P[22]}), v_t257_0);
+    const derive_vd v_t257_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[34], P[35], P[36], P[37]}), v_t257_1);
+    const derive_vd v_t257_3 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t257_2);
+    const derive_vd v_t257_4 = DERIVE_VFMA(((derive_vd){t188, t188, t188, t188}), ((derive_vd){P[199], P[200], P[201], P[202]}), v_t257_3);
+    const derive_vd v_t257 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[214], P[215], P[216], P[217]}), v_t257_4);
+    const double t257 = v_t257[0];
+    const double t258 = v_t257[1];
+    #else
+    const double t257 = DERIVE_FMA(t146, P[214], DERIVE_FMA(t188, P[199], DERIVE_FMA(t144, P[184], DERIVE_FMA(t143, P[34], DERIVE_FMA(t142, P[19], DERIVE_FMA(t141, P[4], P[79]))))));
+    const double t258 = DERIVE_FMA(t146, P[215], DERIVE_FMA(t188, P[200], DERIVE_FMA(t144, P[185], DERIVE_FMA(t143, P[35], DERIVE_FMA(t142, P[20], DERIVE_FMA(t141, P[5], P[80]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t261_0 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[83], P[84], P[85], P[86]}));
+    const derive_vd v_t261_1 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t261_0);
+    const derive_vd v_t261_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[38], P[39], P[40], P[41]}), v_t261_1);
+    const derive_vd v_t261_3 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t261_2);
+    const derive_vd v_t261_4 = DERIVE_VFMA(((derive_vd){t188, t188, t188, t188}), ((derive_vd){P[203], P[204], P[205], P[206]}), v_t261_3);
+    const derive_vd v_t261 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[218], P[219], P[220], P[221]}), v_t261_4);
+    const double t262 = v_t261[1];
+    const double t263 = v_t261[2];
+    const double t264 = v_t261[3];
+    *(derive_vd_unaligned *)&P_new[152] = ((derive_vd){t219, t231, t247, t263});
+    #else
+    const double t262 = DERIVE_FMA(t146, P[219], DERIVE_FMA(t188, P[204], DERIVE_FMA(t144, P[189], DERIVE_FMA(t143, P[39], DERIVE_FMA(t142, P[24], DERIVE_FMA(t141, P[9], P[84]))))));
+    const double t263 = DERIVE_FMA(t146, P[220], DERIVE_FMA(t188, P[205], DERIVE_FMA(t144, P[190], DERIVE_FMA(t143, P[40], DERIVE_FMA(t142, P[25], DERIVE_FMA(t141, P[10], P[85]))))));
+    const double t264 = DERIVE_FMA(t146, P[221], DERIVE_FMA(t188, P[206], DERIVE_FMA(t144, P[191], DERIVE_FMA(t143, P[41], DERIVE_FMA(t142, P[26], DERIVE_FMA(t141, P[11], P[86]))))));
+    P_new[84] = t262;
+    P_new[140] = t262;
+    P_new[85] = t263;
+    P_new[155] = t263;
+    P_new[86] = t264;
+    P_new[170] = t264;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t265_0 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[11], P[12], P[13], P[14]}), ((derive_vd){P[86], P[87], P[88], P[89]}));
+    const derive_vd v_t265_1 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[26], P[27], P[28], P[29]}), v_t265_0);
+    const derive_vd v_t265_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[41], P[42], P[43], P[44]}), v_t265_1);
+    const derive_vd v_t265_3 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[191], P[192], P[193], P[194]}), v_t265_2);
+    const derive_vd v_t265_4 = DERIVE_VFMA(((derive_vd){t188, t188, t188, t188}), ((derive_vd){P[206], P[207], P[208], P[209]}), v_t265_3);
+    const derive_vd v_t265 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[221], P[222], P[223], P[224]}), v_t265_4);
+    const double t266 = v_t265[1];
+    const double t267 = v_t265[2];
+    const double t268 = v_t265[3];
+    *(derive_vd_unaligned *)&P_new[84] = ((derive_vd){t262, t263, t264, t266});
+    *(derive_vd_unaligned *)&P_new[212] = ((derive_vd){t224, t236, t252, t268});
+    #else
+    const double t266 = DERIVE_FMA(t146, P[222], DERIVE_FMA(t188, P[207], DERIVE_FMA(t144, P[192], DERIVE_FMA(t143, P[42], DERIVE_FMA(t142, P[27], DERIVE_FMA(t141, P[12], P[87]))))));
+    const double t267 = DERIVE_FMA(t146, P[223], DERIVE_FMA(t188, P[208], DERIVE_FMA(t144, P[193], DERIVE_FMA(t143, P[43], DERIVE_FMA(t142, P[28], DERIVE_FMA(t141, P[13], P[88]))))));
+    const double t268 = DERIVE_FMA(t146, P[224], DERIVE_FMA(t188, P[209], DERIVE_FMA(t144, P[194], DERIVE_FMA(t143, P[44], DERIVE_FMA(t142, P[29], DERIVE_FMA(t141, P[14], P[89]))))));
+    P_new[87] = t266;
+    P_new[185] = t266;
+    P_new[88] = t267;
+    P_new[200] = t267;
+    P_new[89] = t268;
+    P_new[215] = t268;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t269 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[45], P[46], P[47], P[48]}), ((derive_vd){P[90], P[91], P[92], P[93]}));
+    const double t269 = v_t269[0];
+    const double t270 = v_t269[1];
+    const double t271 = v_t269[2];
+    const double t272 = v_t269[3];
+    #else
+    const double t269 = DERIVE_FMA(p[0], P[45], P[90]);
+    const double t270 = DERIVE_FMA(p[0], P[46], P[91]);
+    const double t271 = DERIVE_FMA(p[0], P[47], P[92]);
+    const double t272 = DERIVE_FMA(p[0], P[48], P[93]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t273 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[49], P[50], P[51], P[52]}), ((derive_vd){P[94], P[95], P[96], P[97]}));
+    const double t273 = v_t273[0];
+    const double t274 = v_t273[1];
+    const double t275 = v_t273[2];
+    #else
+    const double t273 = DERIVE_FMA(p[0], P[49], P[94]);
+    const double t274 = DERIVE_FMA(p[0], P[50], P[95]);
+    const double t275 = DERIVE_FMA(p[0], P[51], P[96]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t277 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[53], P[54], P[55], P[56]}), ((derive_vd){P[98], P[99], P[100], P[101]}));
+    const double t278 = v_t277[1];
+    const double t279 = v_t277[2];
+    const double t280 = v_t277[3];
+    *(derive_vd_unaligned *)&P_new[168] = ((derive_vd){t232, t248, t264, t280});
+    #else
+    const double t278 = DERIVE_FMA(p[0], P[54], P[99]);
+    const double t279 = DERIVE_FMA(p[0], P[55], P[100]);
+    const double t280 = DERIVE_FMA(p[0], P[56], P[101]);
+    P_new[99] = t278;
+    P_new[141] = t278;
+    P_new[100] = t279;
+    P_new[156] = t279;
+    P_new[101] = t280;
+    P_new[171] = t280;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t281 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[56], P[57], P[58], P[59]}), ((derive_vd){P[101], P[102], P[103], P[104]}));
+    const double t282 = v_t281[1];
+    const double t283 = v_t281[2];
+    const double t284 = v_t281[3];
+    *(derive_vd_unaligned *)&P_new[100] = ((derive_vd){t279, t280, t282, t283});
+    #else
+    const double t282 = DERIVE_FMA(p[0], P[57], P[102]);
+    const double t283 = DERIVE_FMA(p[0], P[58], P[103]);
+    const double t284 = DERIVE_FMA(p[0], P[59], P[104]);
+    P_new[102] = t282;
+    P_new[186] = t282;
+    P_new[103] = t283;
+    P_new[201] = t283;
+    P_new[104] = t284;
+    P_new[216] = t284;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t285 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[60], P[61], P[62], P[63]}), ((derive_vd){P[105], P[106], P[107], P[108]}));
+    const double t285 = v_t285[0];
+    const double t286 = v_t285[1];
+    const double t287 = v_t285[2];
+    const double t288 = v_t285[3];
+    #else
+    const double t285 = DERIVE_FMA(p[0], P[60], P[105]);
+    const double t286 = DERIVE_FMA(p[0], P[61], P[106]);
+    const double t287 = DERIVE_FMA(p[0], P[62], P[107]);
+    const double t288 = DERIVE_FMA(p[0], P[63], P[108]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t289 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[64], P[65], P[66], P[67]}), ((derive_vd){P[109], P[110], P[111], P[112]}));
+    const double t289 = v_t289[0];
+    const double t290 = v_t289[1];
+    const double t291 = v_t289[2];
+    const double t292 = v_t289[3];
+    #else
+    const double t289 = DERIVE_FMA(p[0], P[64], P[109]);
+    const double t290 = DERIVE_FMA(p[0], P[65], P[110]);
+    const double t291 = DERIVE_FMA(p[0], P[66], P[111]);
+    const double t292 = DERIVE_FMA(p[0], P[67], P[112]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t293 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[68], P[69], P[70], P[71]}), ((derive_vd){P[113], P[114], P[115], P[116]}));
+    const double t294 = v_t293[1];
+    const double t295 = v_t293[2];
+    const double t296 = v_t293[3];
+    #else
+    const double t294 = DERIVE_FMA(p[0], P[69], P[114]);
+    const double t295 = DERIVE_FMA(p[0], P[70], P[115]);
+    const double t296 = DERIVE_FMA(p[0], P[71], P[116]);
+    P_new[114] = t294;
+    P_new[142] = t294;
+    P_new[115] = t295;
+    P_new[157] = t295;
+    P_new[116] = t296;
+    P_new[172] = t296;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t297 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[71], P[72], P[73], P[74]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const double t298 = v_t297[1];
+    const double t299 = v_t297[2];
+    const double t300 = v_t297[3];
+    *(derive_vd_unaligned *)&P_new[116] = ((derive_vd){t296, t298, t299, t300});
+    *(derive_vd_unaligned *)&P_new[184] = ((derive_vd){t250, t266, t282, t298});
+    #else
+    const double t298 = DERIVE_FMA(p[0], P[72], P[117]);
+    const double t299 = DERIVE_FMA(p[0], P[73], P[118]);
+    const double t300 = DERIVE_FMA(p[0], P[74], P[119]);
+    P_new[117] = t298;
+    P_new[187] = t298;
+    P_new[118] = t299;
+    P_new[202] = t299;
+    P_new[119] = t300;
+    P_new[217] = t300;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t301 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[75], P[76], P[77], P[78]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const double t301 = v_t301[0];
+    const double t302 = v_t301[1];
+    const double t303 = v_t301[2];
+    const double t304 = v_t301[3];
+    #else
+    const double t301 = DERIVE_FMA(p[0], P[75], P[120]);
+    const double t302 = DERIVE_FMA(p[0], P[76], P[121]);
+    const double t303 = DERIVE_FMA(p[0], P[77], P[122]);
+    const double t304 = DERIVE_FMA(p[0], P[78], P[123]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t305 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[79], P[80], P[81], P[82]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const double t305 = v_t305[0];
+    const double t306 = v_t305[1];
+    const double t307 = v_t305[2];
+    const double t308 = v_t305[3];
+    #else
+    const double t305 = DERIVE_FMA(p[0], P[79], P[124]);
+    const double t306 = DERIVE_FMA(p[0], P[80], P[125]);
+    const double t307 = DERIVE_FMA(p[0], P[81], P[126]);
+    const double t308 = DERIVE_FMA(p[0], P[82], P[127]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t309 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[83], P[84], P[85], P[86]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const double t309 = v_t309[0];
+    const double t310 = v_t309[1];
+    const double t311 = v_t309[2];
+    const double t312 = v_t309[3];
+    *(derive_vd_unaligned *)&P_new[140] = ((derive_vd){t262, t278, t294, t310});
+    #else
+    const double t309 = DERIVE_FMA(p[0], P[83], P[128]);
+    const double t310 = DERIVE_FMA(p[0], P[84], P[129]);
+    const double t311 = DERIVE_FMA(p[0], P[85], P[130]);
+    const double t312 = DERIVE_FMA(p[0], P[86], P[131]);
+    P_new[129] = t310;
+    P_new[143] = t310;
+    P_new[130] = t311;
+    P_new[158] = t311;
+    P_new[131] = t312;
+    P_new[173] = t312;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t313 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[86], P[87], P[88], P[89]}), ((derive_vd){P[131], P[132], P[133], P[134]}));
+    const double t314 = v_t313[1];
+    const double t315 = v_t313[2];
+    const double t316 = v_t313[3];
+    *(derive_vd_unaligned *)&P_new[132] = ((derive_vd){t314, t315, t316, t194});
+    *(derive_vd_unaligned *)&P_new[200] = ((derive_vd){t267, t283, t299, t315});
+    #else
+    const double t314 = DERIVE_FMA(p[0], P[87], P[132]);
+    const double t315 = DERIVE_FMA(p[0], P[88], P[133]);
+    const double t316 = DERIVE_FMA(p[0], P[89], P[134]);
+    P_new[132] = t314;
+    P_new[188] = t314;
+    P_new[133] = t315;
+    P_new[203] = t315;
+    P_new[134] = t316;
+    P_new[218] = t316;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t317_0 = DERIVE_VFMA(((derive_vd){t115, t115, t115, t115}), ((derive_vd){t189, t201, t213, t225}), ((derive_vd){t166, t167, t168, 0.0}));
+    const derive_vd v_t317_1 = DERIVE_VFMA(((derive_vd){t116, t116, t116, t116}), ((derive_vd){t190, t202, t214, t226}), v_t317_0);
+    const derive_vd v_t317_2 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){t191, t203, t215, t227}), v_t317_1);
+    const derive_vd v_t317_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t194, t206, t218, t230}), v_t317_2);
+    const derive_vd v_t317_4 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t195, t207, t219, t231}), v_t317_3);
+    const derive_vd v_t317 = DERIVE_VFMA(((derive_vd){t76, t76, t76, t76}), ((derive_vd){t196, t208, t220, t232}), v_t317_4);
+    const double t318 = v_t317[1];
+    const double t319 = v_t317[2];
+    const double t320 = v_t317[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t317;
+    *(derive_vd_unaligned *)&P_new[12] = ((derive_vd){t198, t199, t200, t318});
+    #else
+    const double t317 = DERIVE_FMA(t76, t196, DERIVE_FMA(t73, t195, DERIVE_FMA(t71, t194, DERIVE_FMA(t117, t191, DERIVE_FMA(t116, t190, DERIVE_FMA(t115, t189, t166))))));
+    const double t318 = DERIVE_FMA(t76, t208, DERIVE_FMA(t73, t207, DERIVE_FMA(t71, t206, DERIVE_FMA(t117, t203, DERIVE_FMA(t116, t202, DERIVE_FMA(t115, t201, t167))))));
+    const double t319 = DERIVE_FMA(t76, t220, DERIVE_FMA(t73, t219, DERIVE_FMA(t71, t218, DERIVE_FMA(t117, t215, DERIVE_FMA(t116, t214, DERIVE_FMA(t115, t213, t168))))));
+    const double t320 = DERIVE_FMA(t76, t232, DERIVE_FMA(t73, t231, DERIVE_FMA(t71, t230, DERIVE_FMA(t117, t227, DERIVE_FMA(t116, t226, DERIVE_FMA(t115, t225, 0.0))))));
+    P_new[0] = t317;
+    P_new[1] = t318;
+    P_new[15] = t318;
+    P_new[2] = t319;
+    P_new[30] = t319;
+    P_new[3] = t320;
+    P_new[45] = t320;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t321_0 = (((derive_vd){t115, t115, t115, t115}) * ((derive_vd){t237, t253, t269, t285}));
+    const derive_vd v_t321_1 = DERIVE_VFMA(((derive_vd){t116, t116, t116, t116}), ((derive_vd){t238, t254, t270, t286}), v_t321_0);
+    const derive_vd v_t321_2 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){t239, t255, t271, t287}), v_t321_1);
+    const derive_vd v_t321_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t246, t262, t278, t294}), v_t321_2);
+    const derive_vd v_t321_4 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t247, t263, t279, t295}), v_t321_3);
+    const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){t76, t76, t76, t76}), ((derive_vd){t248, t264, t280, t296}), v_t321_4);
+    const double t321 = v_t321[0];
+    const double t322 = v_t321[1];
+    const double t323 = v_t321[2];
+    const double t324 = v_t321[3];
+    *(derive_vd_unaligned *)&P_new[4] = v_t321;
+    *(derive_vd_unaligned *)&P_new[72] = ((derive_vd){t250, t251, t252, t322});
+    #else
+    const double t321 = DERIVE_FMA(t76, t248, DERIVE_FMA(t73, t247, DERIVE_FMA(t71, t246, DERIVE_FMA(t117, t239, DERIVE_FMA(t116, t238, t115*t237)))));
+    const double t322 = DERIVE_FMA(t76, t264, DERIVE_FMA(t73, t263, DERIVE_FMA(t71, t262, DERIVE_FMA(t117, t255, DERIVE_FMA(t116, t254, t115*t253)))));
+    const double t323 = DERIVE_FMA(t76, t280, DERIVE_FMA(t73, t279, DERIVE_FMA(t71, t278, DERIVE_FMA(t117, t271, DERIVE_FMA(t116, t270, t115*t269)))));
+    const double t324 = DERIVE_FMA(t76, t296, DERIVE_FMA(t73, t295, DERIVE_FMA(t71, t294, DERIVE_FMA(t117, t287, DERIVE_FMA(t116, t286, t115*t285)))));
+    P_new[4] = t321;
+    P_new[60] = t321;
+    P_new[5] = t322;
+    P_new[75] = t322;
+    P_new[6] = t323;
+    P_new[90] = t323;
+    P_new[7] = t324;
+    P_new[105] = t324;
+    #endif
+    const double t325 = DERIVE_FMA(t312, t76, DERIVE_FMA(t311, t73, DERIVE_FMA(t310, t71, DERIVE_FMA(t117, t303, DERIVE_FMA(t116, t302, t115*t301)))));
+    const double t326 = DERIVE_FMA(t208, t83, DERIVE_FMA(t207, t71, DERIVE_FMA(t206, t77, DERIVE_FMA(t121, t203, DERIVE_FMA(t120, t202, DERIVE_FMA(t118, t201, t169))))));
+    const double t327 = DERIVE_FMA(t220, t83, DERIVE_FMA(t219, t71, DERIVE_FMA(t218, t77, DERIVE_FMA(t121, t215, DERIVE_FMA(t120, t214, DERIVE_FMA(t118, t213, t170))))));
+    const double t328 = DERIVE_FMA(t232, t83, DERIVE_FMA(t231, t71, DERIVE_FMA(t230, t77, DERIVE_FMA(t121, t227, DERIVE_FMA(t120, t226, t118*t225)))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t329_0 = (((derive_vd){t118, t118, t118, t118}) * ((derive_vd){t237, t253, t269, t285}));
+    const derive_vd v_t329_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){t238, t254, t270, t286}), v_t329_0);
+    const derive_vd v_t329_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){t239, t255, t271, t287}), v_t329_1);
+    const derive_vd v_t329_3 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){t246, t262, t278, t294}), v_t329_2);
+    const derive_vd v_t329_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t247, t263, t279, t295}), v_t329_3);
+    const derive_vd v_t329 = DERIVE_VFMA(((derive_vd){t83, t83, t83, t83}), ((derive_vd){t248, t264, t280, t296}), v_t329_4);
+    const double t329 = v_t329[0];
+    const double t330 = v_t329[1];
+    const double t331 = v_t329[2];
+    const double t332 = v_t329[3];
+    *(derive_vd_unaligned *)&P_new[88] = ((derive_vd){t267, t268, t323, t331});
+    #else
+    const double t329 = DERIVE_FMA(t83, t248, DERIVE_FMA(t71, t247, DERIVE_FMA(t77, t246, DERIVE_FMA(t121, t239, DERIVE_FMA(t120, t238, t118*t237)))));
+    const double t330 = DERIVE_FMA(t83, t264, DERIVE_FMA(t71, t263, DERIVE_FMA(t77, t262, DERIVE_FMA(t121, t255, DERIVE_FMA(t120, t254, t118*t253)))));
+    const double t331 = DERIVE_FMA(t83, t280, DERIVE_FMA(t71, t279, DERIVE_FMA(t77, t278, DERIVE_FMA(t121, t271, DERIVE_FMA(t120, t270, t118*t269)))));
+    const double t332 = DERIVE_FMA(t83, t296, DERIVE_FMA(t71, t295, DERIVE_FMA(t77, t294, DERIVE_FMA(t121, t287, DERIVE_FMA(t120, t286, t118*t285)))));
+    P_new[19] = t329;
+    P_new[61] = t329;
+    P_new[20] = t330;
+    P_new[76] = t330;
+    P_new[21] = t331;
+    P_new[91] = t331;
+    P_new[22] = t332;
+    P_new[106] = t332;
+    #endif
+    const double t333 = DERIVE_FMA(t312, t83, DERIVE_FMA(t311, t71, DERIVE_FMA(t310, t77, DERIVE_FMA(t121, t303, DERIVE_FMA(t120, t302, t118*t301)))));
+    const double t334 = DERIVE_FMA(t220, t71, DERIVE_FMA(t219, t84, DERIVE_FMA(t218, t75, DERIVE_FMA(t124, t215, DERIVE_FMA(t123, t214, DERIVE_FMA(t122, t213, t171))))));
+    const double t335 = DERIVE_FMA(t232, t71, DERIVE_FMA(t231, t84, DERIVE_FMA(t230, t75, DERIVE_FMA(t124, t227, DERIVE_FMA(t123, t226, t122*t225)))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t336_0 = (((derive_vd){t122, t122, t122, t122}) * ((derive_vd){t237, t253, t269, t285}));
+    const derive_vd v_t336_1 = DERIVE_VFMA(((derive_vd){t123, t123, t123, t123}), ((derive_vd){t238, t254, t270, t286}), v_t336_0);
+    const derive_vd v_t336_2 = DERIVE_VFMA(((derive_vd){t124, t124, t124, t124}), ((derive_vd){t239, t255, t271, t287}), v_t336_1);
+    const derive_vd v_t336_3 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t246, t262, t278, t294}), v_t336_2);
+    const derive_vd v_t336_4 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t247, t263, t279, t295}), v_t336_3);
+    const derive_vd v_t336 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t248, t264, t280, t296}), v_t336_4);
+    const double t336 = v_t336[0];
+    const double t337 = v_t336[1];
+    const double t338 = v_t336[2];
+    const double t339 = v_t336[3];
+    *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t284, t324, t332, t339});
+    #else
+    const double t336 = DERIVE_FMA(t71, t248, DERIVE_FMA(t84, t247, DERIVE_FMA(t75, t246, DERIVE_FMA(t124, t239, DERIVE_FMA(t123, t238, t122*t237)))));
+    const double t337 = DERIVE_FMA(t71, t264, DERIVE_FMA(t84, t263, DERIVE_FMA(t75, t262, DERIVE_FMA(t124, t255, DERIVE_FMA(t123, t254, t122*t253)))));
+    const double t338 = DERIVE_FMA(t71, t280, DERIVE_FMA(t84, t279, DERIVE_FMA(t75, t278, DERIVE_FMA(t124, t271, DERIVE_FMA(t123, t270, t122*t269)))));
+    const double t339 = DERIVE_FMA(t71, t296, DERIVE_FMA(t84, t295, DERIVE_FMA(t75, t294, DERIVE_FMA(t124, t287, DERIVE_FMA(t123, t286, t122*t285)))));
+    P_new[34] = t336;
+    P_new[62] = t336;
+    P_new[35] = t337;
+    P_new[77] = t337;
+    P_new[36] = t338;
+    P_new[92] = t338;
+    P_new[37] = t339;
+    P_new[107] = t339;
+    #endif
+    const double t340 = DERIVE_FMA(t312, t71, DERIVE_FMA(t311, t84, DERIVE_FMA(t310, t75, DERIVE_FMA(t124, t303, DERIVE_FMA(t123, t302, t122*t301)))));
+    const double t341 = DERIVE_FMA(t186, t236, DERIVE_FMA(t129, t235, DERIVE_FMA(t128, t234, DERIVE_FMA(t127, t227, DERIVE_FMA(t126, t226, DERIVE_FMA(t125, t225, t172 + t228))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t342_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){t237, t253, t269, t285}), ((derive_vd){t173, t174, 0.0, 0.0}));
+    const derive_vd v_t342_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){t238, t254, t270, t286}), v_t342_0);
+    const derive_vd v_t342_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){t239, t255, t271, t287}), v_t342_1);
+    const derive_vd v_t342_3 = (v_t342_2 + ((derive_vd){t240, t256, t272, t288}));
+    const derive_vd v_t342_4 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){t250, t266, t282, t298}), v_t342_3);
+    const derive_vd v_t342_5 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){t251, t267, t283, t299}), v_t342_4);
+    const derive_vd v_t342 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){t252, t268, t284, t300}), v_t342_5);
+    const double t342 = v_t342[0];
+    const double t343 = v_t342[1];
+    const double t344 = v_t342[2];
+    const double t345 = v_t342[3];
+    *(derive_vd_unaligned *)&P_new[60] = ((derive_vd){t321, t329, t336, t342});
+    #else
+    const double t342 = DERIVE_FMA(t186, t252, DERIVE_FMA(t129, t251, DERIVE_FMA(t128, t250, DERIVE_FMA(t127, t239, DERIVE_FMA(t126, t238, DERIVE_FMA(t125, t237, t173))) + t240)));
+    const double t343 = DERIVE_FMA(t186, t268, DERIVE_FMA(t129, t267, DERIVE_FMA(t128, t266, DERIVE_FMA(t127, t255, DERIVE_FMA(t126, t254, DERIVE_FMA(t125, t253, t174))) + t256)));
+    const double t344 = DERIVE_FMA(t186, t284, DERIVE_FMA(t129, t283, DERIVE_FMA(t128, t282, DERIVE_FMA(t127, t271, DERIVE_FMA(t126, t270, DERIVE_FMA(t125, t269, 0.0))) + t272)));
+    const double t345 = DERIVE_FMA(t186, t300, DERIVE_FMA(t129, t299, DERIVE_FMA(t128, t298, DERIVE_FMA(t127, t287, DERIVE_FMA(t126, t286, DERIVE_FMA(t125, t285, 0.0))) + t288)));
+    P_new[49] = t342;
+    P_new[63] = t342;
+    P_new[50] = t343;
+    P_new[78] = t343;
+    P_new[51] = t344;
+    P_new[93] = t344;
+    P_new[52] = t345;
+    P_new[108] = t345;
+    #endif
+    const double t346 = DERIVE_FMA(t186, t316, DERIVE_FMA(t129, t315, DERIVE_FMA(t128, t314, DERIVE_FMA(t127, t303, DERIVE_FMA(t126, t302, DERIVE_FMA(t125, t301, t304))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t347_0 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t237, t253, t269, t285}), ((derive_vd){t175, t176, 0.0, 0.0}));
+    const derive_vd v_t347_1 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t238, t254, t270, t286}), v_t347_0);
+    const derive_vd v_t347_2 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t239, t255, t271, t287}), v_t347_1);
+    const derive_vd v_t347_3 = (v_t347_2 + ((derive_vd){t241, t257, t273, t289}));
+    const derive_vd v_t347_4 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), ((derive_vd){t250, t266, t282, t298}), v_t347_3);
+    const derive_vd v_t347_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t251, t267, t283, t299}), v_t347_4);
+    const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t252, t268, t284, t300}), v_t347_5);
+    const double t348 = v_t347[1];
+    const double t349 = v_t347[2];
+    const double t350 = v_t347[3];
+    *(derive_vd_unaligned *)&P_new[64] = v_t347;
+    *(derive_vd_unaligned *)&P_new[76] = ((derive_vd){t330, t337, t343, t348});
+    #else
+    const double t347 = DERIVE_FMA(t138, t252, DERIVE_FMA(t137, t251, DERIVE_FMA(t187, t250, DERIVE_FMA(t135, t239, DERIVE_FMA(t134, t238, DERIVE_FMA(t133, t237, t175))) + t241)));
+    const double t348 = DERIVE_FMA(t138, t268, DERIVE_FMA(t137, t267, DERIVE_FMA(t187, t266, DERIVE_FMA(t135, t255, DERIVE_FMA(t134, t254, DERIVE_FMA(t133, t253, t176))) + t257)));
+    const double t349 = DERIVE_FMA(t138, t284, DERIVE_FMA(t137, t283, DERIVE_FMA(t187, t282, DERIVE_FMA(t135, t271, DERIVE_FMA(t134, t270, DERIVE_FMA(t133, t269, 0.0))) + t273)));
+    const double t350 = DERIVE_FMA(t138, t300, DERIVE_FMA(t137, t299, DERIVE_FMA(t187, t298, DERIVE_FMA(t135, t287, DERIVE_FMA(t134, t286, DERIVE_FMA(t133, t285, 0.0))) + t289)));
+    P_new[64] = t347;
+    P_new[65] = t348;
+    P_new[79] = t348;
+    P_new[66] = t349;
+    P_new[94] = t349;
+    P_new[67] = t350;
+    P_new[109] = t350;
+    #endif
+    const double t351 = DERIVE_FMA(t187, t314, DERIVE_FMA(t138, t316, DERIVE_FMA(t137, t315, DERIVE_FMA(t135, t303, DERIVE_FMA(t134, t302, DERIVE_FMA(t133, t301, t305))))));
+    const double t352 = DERIVE_FMA(t188, t267, DERIVE_FMA(t146, t268, DERIVE_FMA(t144, t266, DERIVE_FMA(t143, t255, DERIVE_FMA(t142, t254, DERIVE_FMA(t141, t253, t177 + t258))))));
+    const double t353 = DERIVE_FMA(t188, t283, DERIVE_FMA(t146, t284, DERIVE_FMA(t144, t282, DERIVE_FMA(t143, t271, DERIVE_FMA(t142, t270, DERIVE_FMA(t141, t269, t274))))));
+    const double t354 = DERIVE_FMA(t188, t299, DERIVE_FMA(t146, t300, DERIVE_FMA(t144, t298, DERIVE_FMA(t143, t287, DERIVE_FMA(t142, t286, DERIVE_FMA(t141, t285, t290))))));
+    const double t355 = DERIVE_FMA(t188, t315, DERIVE_FMA(t146, t316, DERIVE_FMA(t144, t314, DERIVE_FMA(t143, t303, DERIVE_FMA(t142, t302, DERIVE_FMA(t141, t301, t306))))));
+    const double t356 = DERIVE_FMA(p[0], t272, t275);
+    const double t357 = DERIVE_FMA(p[0], t288, t291);
+    const double t358 = DERIVE_FMA(p[0], t304, t307);
+    const double t359 = DERIVE_FMA(p[0], t289, t292);
+    const double t360 = DERIVE_FMA(p[0], t305, t308);
+    const double t361 = DERIVE_FMA(p[0], t306, t309);
+    const double t362 = P[144] + t178;
+    const double t363 = P[160] + t178;
+    const double t364 = P[176] + t178;
+    const double t365 = P[192] + t179;
+    const double t366 = P[208] + t179;
+    const double t367 = P[224] + t179;
+    #if DERIVE_VECTOR
+    x_new[0] = t182;
+    x_new[1] = t183;
+    x_new[2] = t184;
+    x_new[3] = t185;
     x_new[4] = t109;
     x_new[5] = t110;
     x_new[6] = t111;
@@ -459,231 +1048,220 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     x_new[13] = x[13];
     x_new[14] = x[14];
     x_new[15] = x[15];
-    P_new[0] = t351;
-    P_new[1] = t352;
-    P_new[2] = t353;
-    P_new[3] = t309;
-    P_new[4] = t310;
-    P_new[5] = t311;
-    P_new[6] = t312;
-    P_new[7] = t313;
-    P_new[8] = t314;
-    P_new[9] = t189;
-    P_new[10] = t191;
-    P_new[11] = t193;
-    P_new[12] = t194;
-    P_new[13] = t195;
-    P_new[14] = t196;
-    P_new[15] = t352;
-    P_new[16] = t354;
-    P_new[17] = t355;
-    P_new[18] = t317;
-    P_new[19] = t318;
-    P_new[20] = t319;
-    P_new[21] = t320;
-    P_new[22] = t321;
-    P_new[23] = t322;
-    P_new[24] = t206;
-    P_new[25] = t207;
-    P_new[26] = t209;
-    P_new[27] = t210;
+    P_new[8] = t325;
+    P_new[9] = t194;
+    P_new[10] = t195;
+    P_new[11] = t196;
+    P_new[16] = t326;
+    P_new[17] = t327;
+    P_new[18] = t328;
+    P_new[19] = t329;
+    P_new[20] = t330;
+    P_new[21] = t331;
+    P_new[22] = t332;
+    P_new[23] = t333;
     P_new[28] = t211;
     P_new[29] = t212;
-    P_new[30] = t353;
-    P_new[31] = t355;
-    P_new[32] = t356;
-    P_new[33] = t324;
-    P_new[34] = t325;
-    P_new[35] = t326;
-    P_new[36] = t327;
-    P_new[37] = t328;
-    P_new[38] = t329;
-    P_new[39] = t222;
-    P_new[40] = t223;
-    P_new[41] = t224;
-    P_new[42] = t225;
-    P_new[43] = t226;
-    P_new[44] = t227;
-    P_new[45] = t309;
-    P_new[46] = t317;
-    P_new[47] = t324;
-    P_new[48] = t357;
-    P_new[49] = t358;
-    P_new[50] = t359;
-    P_new[51] = t333;
-    P_new[52] = t334;
-    P_new[53] = t335;
-    P_new[54] = t237;
-    P_new[55] = t238;
-    P_new[56] = t239;
-    P_new[57] = t240;
-    P_new[58] = t241;
-    P_new[59] = t242;
-    P_new[60] = t310;
-    P_new[61] = t318;
-    P_new[62] = t325;
-    P_new[63] = t358;
-    P_new[64] = t360;
-    P_new[65] = t361;
-    P_new[66] = t338;
-    P_new[67] = t339;
-    P_new[68] = t340;
-    P_new[69] = t252;
-    P_new[70] = t253;
-    P_new[71] = t254;
-    P_new[72] = t255;
-    P_new[73] = t256;
-    P_new[74] = t257;
-    P_new[75] = t311;
-    P_new[76] = t319;
-    P_new[77] = t326;
-    P_new[78] = t359;
-    P_new[79] = t361;
-    P_new[80] = t362;
-    P_new[81] = t342;
-    P_new[82] = t343;
-    P_new[83] = t344;
-    P_new[84] = t267;
-    P_new[85] = t268;
-    P_new[86] = t269;
-    P_new[87] = t270;
-    P_new[88] = t271;
-    P_new[89] = t272;
-    P_new[90] = t312;
-    P_new[91] = t320;
-    P_new[92] = t327;
-    P_new[93] = t333;
-    P_new[94] = t338;
-    P_new[95] = t342;
-    P_new[96] = t345;
-    P_new[97] = t346;
-    P_new[98] = t347;
-    P_new[99] = t281;
-    P_new[100] = t282;
-    P_new[101] = t283;
-    P_new[102] = t284;
-    P_new[103] = t285;
-    P_new[104] = t286;
-    P_new[105] = t313;
-    P_new[106] = t321;
-    P_new[107] = t328;
-    P_new[108] = t334;
-    P_new[109] = t339;
-    P_new[110] = t343;
-    P_new[111] = t346;
-    P_new[112] = t348;
-    P_new[113] = t349;
-    P_new[114] = t292;
-    P_new[115] = t293;
-    P_new[116] = t294;
-    P_new[117] = t295;
-    P_new[118] = t296;
-    P_new[119] = t297;
-    P_new[120] = t314;
-    P_new[121] = t322;
-    P_new[122] = t329;
-    P_new[123] = t335;
-    P_new[124] = t340;
-    P_new[125] = t344;
-    P_new[126] = t347;
-    P_new[127] = t349;
-    P_new[128] = t350;
-    P_new[129] = t300;
-    P_new[130] = t301;
-    P_new[131] = t302;
-    P_new[132] = t303;
-    P_new[133] = t304;
-    P_new[134] = t305;
-    P_new[135] = t189;
-    P_new[136] = t206;
-    P_new[137] = t222;
-    P_new[138] = t237;
-    P_new[139] = t252;
-    P_new[140] = t267;
-    P_new[141] = t281;
-    P_new[142] = t292;
-    P_new[143] = t300;
-    P_new[144] = t363;
+    P_new[30] = t319;
+    P_new[31] = t327;
+    P_new[32] = t334;
+    P_new[33] = t335;
+    P_new[34] = t336;
+    P_new[35] = t337;
+    P_new[36] = t338;
+    P_new[37] = t339;
+    P_new[38] = t340;
+    P_new[39] = t218;
+    P_new[44] = t224;
+    P_new[45] = t320;
+    P_new[46] = t328;
+    P_new[47] = t335;
+    P_new[48] = t341;
+    P_new[49] = t342;
+    P_new[50] = t343;
+    P_new[51] = t344;
+    P_new[52] = t345;
+    P_new[53] = t346;
+    P_new[54] = t230;
+    P_new[55] = t231;
+    P_new[68] = t351;
+    P_new[69] = t246;
+    P_new[70] = t247;
+    P_new[71] = t248;
+    P_new[80] = t352;
+    P_new[81] = t353;
+    P_new[82] = t354;
+    P_new[83] = t355;
+    P_new[92] = t338;
+    P_new[93] = t344;
+    P_new[94] = t349;
+    P_new[95] = t353;
+    P_new[96] = t356;
+    P_new[97] = t357;
+    P_new[98] = t358;
+    P_new[99] = t278;
+    P_new[108] = t345;
+    P_new[109] = t350;
+    P_new[110] = t354;
+    P_new[111] = t357;
+    P_new[112] = t359;
+    P_new[113] = t360;
+    P_new[114] = t294;
+    P_new[115] = t295;
+    P_new[120] = t325;
+    P_new[121] = t333;
+    P_new[122] = t340;
+    P_new[123] = t346;
+    P_new[124] = t351;
+    P_new[125] = t355;
+    P_new[126] = t358;
+    P_new[127] = t360;
+    P_new[128] = t361;
+    P_new[129] = t310;
+    P_new[130] = t311;
+    P_new[131] = t312;
+    P_new[144] = t362;
     P_new[145] = P[145];
     P_new[146] = P[146];
     P_new[147] = P[147];
     P_new[148] = P[148];
     P_new[149] = P[149];
-    P_new[150] = t191;
+    P_new[150] = t195;
     P_new[151] = t207;
-    P_new[152] = t223;
-    P_new[153] = t238;
-    P_new[154] = t253;
-    P_new[155] = t268;
-    P_new[156] = t282;
-    P_new[157] = t293;
-    P_new[158] = t301;
+    P_new[156] = t279;
+    P_new[157] = t295;
+    P_new[158] = t311;
     P_new[159] = P[145];
-    P_new[160] = t364;
+    P_new[160] = t363;
     P_new[161] = P[161];
     P_new[162] = P[162];
     P_new[163] = P[163];
     P_new[164] = P[164];
-    P_new[165] = t193;
-    P_new[166] = t209;
-    P_new[167] = t224;
-    P_new[168] = t239;
-    P_new[169] = t254;
-    P_new[170] = t269;
-    P_new[171] = t283;
-    P_new[172] = t294;
-    P_new[173] = t302;
+    P_new[165] = t196;
+    P_new[166] = t208;
+    P_new[167] = t220;
+    P_new[172] = t296;
+    P_new[173] = t312;
     P_new[174] = P[146];
     P_new[175] = P[161];
-    P_new[176] = t365;
+    P_new[176] = t364;
     P_new[177] = P[177];
     P_new[178] = P[178];
     P_new[179] = P[179];
-    P_new[180] = t194;
-    P_new[181] = t210;
-    P_new[182] = t225;
-    P_new[183] = t240;
-    P_new[184] = t255;
-    P_new[185] = t270;
-    P_new[186] = t284;
-    P_new[187] = t295;
-    P_new[188] = t303;
+    P_new[188] = t314;
     P_new[189] = P[147];
     P_new[190] = P[162];
     P_new[191] = P[177];
-    P_new[192] = t366;
+    P_new[192] = t365;
     P_new[193] = P[193];
     P_new[194] = P[194];
-    P_new[195] = t195;
-    P_new[196] = t211;
-    P_new[197] = t226;
-    P_new[198] = t241;
-    P_new[199] = t256;
-    P_new[200] = t271;
-    P_new[201] = t285;
-    P_new[202] = t296;
-    P_new[203] = t304;
+    P_new[195] = t199;
     P_new[204] = P[148];
     P_new[205] = P[163];
     P_new[206] = P[178];
     P_new[207] = P[193];
-    P_new[208] = t367;
+    P_new[208] = t366;
     P_new[209] = P[209];
-    P_new[210] = t196;
+    P_new[210] = t200;
     P_new[211] = t212;
-    P_new[212] = t227;
-    P_new[213] = t242;
-    P_new[214] = t257;
-    P_new[215] = t272;
-    P_new[216] = t286;
-    P_new[217] = t297;
-    P_new[218] = t305;
+    P_new[216] = t284;
+    P_new[217] = t300;
+    P_new[218] = t316;
     P_new[219] = P[149];
     P_new[220] = P[164];
     P_new[221] = P[179];
     P_new[222] = P[194];
     P_new[223] = P[209];
-    P_new[224] = t368;
+    P_new[224] = t367;
+    #else
+    x_new[0] = t182;
+    x_new[1] = t183;
+    x_new[2] = t184;
+    x_new[3] = t185;
+    x_new[4] = t109;
+    x_new[5] = t110;
+    x_new[6] = t111;
+    x_new[7] = t112;
+    x_new[8] = t113;
+    x_new[9] = t114;
+    x_new[10] = x[10];
+    x_new[11] = x[11];
+    x_new[12] = x[12];
+    x_new[13] = x[13];
+    x_new[14] = x[14];
+    x_new[15] = x[15];
+    P_new[8] = t325;
+    P_new[16] = t326;
+    P_new[17] = t327;
+    P_new[18] = t328;
+    P_new[23] = t333;
+    P_new[31] = t327;
+    P_new[32] = t334;
+    P_new[33] = t335;
+    P_new[38] = t340;
+    P_new[46] = t328;
+    P_new[47] = t335;
+    P_new[48] = t341;
+    P_new[53] = t346;
+    P_new[68] = t351;
+    P_new[80] = t352;
+    P_new[81] = t353;
+    P_new[82] = t354;
+    P_new[83] = t355;
+    P_new[95] = t353;
+    P_new[96] = t356;
+    P_new[97] = t357;
+    P_new[98] = t358;
+    P_new[110] = t354;
+    P_new[111] = t357;
+    P_new[112] = t359;
+    P_new[113] = t360;
+    P_new[120] = t325;
+    P_new[121] = t333;
+    P_new[122] = t340;
+    P_new[123] = t346;
+    P_new[124] = t351;
+    P_new[125] = t355;
+    P_new[126] = t358;
+    P_new[127] = t360;
+    P_new[128] = t361;
+    P_new[144] = t362;
+    P_new[145] = P[145];
+    P_new[146] = P[146];
+    P_new[147] = P[147];
+    P_new[148] = P[148];
+    P_new[149] = P[149];
+    P_new[159] = P[145];
+    P_new[160] = t363;
+    P_new[161] = P[161];
+    P_new[162] = P[162];
+    P_new[163] = P[163];
+    P_new[164] = P[164];
+    P_new[174] = P[146];
+    P_new[175] = P[161];
+    P_new[176] = t364;
+    P_new[177] = P[177];
+    P_new[178] = P[178];
+    P_new[179] = P[179];
+    P_new[189] = P[147];
+    P_new[190] = P[162];
+    P_new[191] = P[177];
+    P_new[192] = t365;
+    P_new[193] = P[193];
+    P_new[194] = P[194];
+    P_new[204] = P[148];
+    P_new[205] = P[163];
+    P_new[206] = P[178];
+    P_new[207] = P[193];
+    P_new[208] = t366;
+    P_new[209] = P[209];
+    P_new[219] = P[149];
+    P_new[220] = P[164];
+    P_new[221] = P[179];
+    P_new[222] = P[194];
+    P_new[223] = P[209];
+    P_new[224] = t367;
+    #endif
     return 0;
 }
 
@@ -2322,7 +2900,7 @@ int ins_eskf_eskf_run(size_t steps, const double *z_gnss, const double *z_baro, 
         x[i] = x0[i];
     }
     for (i = 0; i < 225; ++i) {
-        P[i] = P0[i];
+        P[i] = i / 15 <= i % 15 ? P0[i] : P0[(i % 15) * 15 + i / 15];
     }
     for (k = 0; k < steps; ++k) {
         const double *uk = u + k * 6;

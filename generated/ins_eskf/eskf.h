@@ -16,7 +16,7 @@
  *     int ins_eskf_eskf_update_baro(x[16] storage, P[15*15] tangent, z[1], x_new[16] out storage, P_new[15*15] out tangent, p[1])
  *     int ins_eskf_eskf_run(steps, z_gnss[steps*6], z_baro[steps*1], u[steps*6], x0[16] storage, P0[15*15] tangent, xs[steps*16] out storage, Ps[steps*15*15] out optional tangent, p[1] rows p_stride)
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
- * symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
+ * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_gnss: P, P_new (inputs: upper triangle read; outputs: written whole)
  * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
@@ -28,7 +28,7 @@
  *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 42, sub 36, mul 185, div 2, sqrt 1, fma 768, neg 17, cmp 1, calls 0 (flops 1802, instructions 1052)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 40, sub 36, mul 190, div 2, sqrt 1, fma 814, neg 20, cmp 1, calls 0 (flops 1897, instructions 1104)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 18, mul 119, div 7, sqrt 1, fma 810, neg 0, cmp 6, calls 0 (flops 1776, instructions 972)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 26, div 2, sqrt 1, fma 147, neg 0, cmp 1, calls 0 (flops 325, instructions 179)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -42,6 +42,7 @@
  * sensors (run: predict with u(k), then each sensor's update in this order when its row k has no NaN): gnss (gpn, gpe, gpd, gvn, gve, gvd); baro (alt)
  * update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
+ * vector rows (rows = vector): predict computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
  * derive-interface: {"functions":[["ins_eskf_eskf_predict","predict",true,false,[["x",[16],false,false,false],["P",[15,15],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[15,15],true,false,false],["p",[1],false,false,false]]],["ins_eskf_eskf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[15,15],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[15,15],true,false,false],["p",[1],false,false,false]]],["ins_eskf_eskf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[15,15],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[15,15],true,false,false],["p",[1],false,false,false]]],["ins_eskf_eskf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[16],false,false,false],["P0",[15,15],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",15,15],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]],"spaces":{"sizes":{"storage":16,"tangent":15},"arrays":{"x":"storage","P":"tangent","x_new":"storage","P_new":"tangent","x0":"storage","P0":"tangent","xs":"storage","Ps":"tangent"}}}
  */
 #ifndef DERIVE_ins_eskf_eskf_H

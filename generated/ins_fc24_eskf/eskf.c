@@ -18,7 +18,7 @@
  *     int ins_fc24_eskf_eskf_update_airspeed(x[24] storage, P[23*23] tangent, z[1], x_new[24] out storage, P_new[23*23] out tangent, p[1])
  *     int ins_fc24_eskf_eskf_run(steps, z_gnss[steps*6], z_baro[steps*1], z_mag[steps*3], z_airspeed[steps*1], u[steps*6], x0[24] storage, P0[23*23] tangent, xs[steps*24] out storage, Ps[steps*23*23] out optional tangent, p[1] rows p_stride)
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
- * symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
+ * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_gnss: P, P_new (inputs: upper triangle read; outputs: written whole)
  * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
  * symmetric in update_mag: P, P_new (inputs: upper triangle read; outputs: written whole)
@@ -36,7 +36,7 @@
  *     update_mag 10: S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
  *     update_airspeed 12: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 50, sub 33, mul 211, div 2, sqrt 1, fma 1056, neg 18, cmp 1, calls 0 (flops 2409, instructions 1372)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 48, sub 30, mul 216, div 2, sqrt 1, fma 1105, neg 30, cmp 1, calls 0 (flops 2507, instructions 1433)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 26, mul 175, div 7, sqrt 1, fma 1786, neg 0, cmp 6, calls 0 (flops 3792, instructions 2012)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 34, div 2, sqrt 1, fma 311, neg 0, cmp 1, calls 0 (flops 661, instructions 351)
  * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 8, sub 29, mul 128, div 4, sqrt 1, fma 1288, neg 4, cmp 3, calls 0 (flops 2746, instructions 1465)
@@ -53,6 +53,7 @@
  * update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * update of mag: sequential, one scalar update per measurement in the order magx, magy, magz (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
+ * vector rows (rows = vector): predict computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
  * derive-interface: {"functions":[["ins_fc24_eskf_eskf_predict","predict",true,false,[["x",[24],false,false,false],["P",[23,23],false,false,false],["u",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[23,23],true,false,false],["p",[1],false,false,false]]],["ins_fc24_eskf_eskf_update_gnss","update_gnss",true,false,[["x",[24],false,false,false],["P",[23,23],false,false,false],["z",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[23,23],true,false,false],["p",[1],false,false,false]]],["ins_fc24_eskf_eskf_update_baro","update_baro",true,false,[["x",[24],false,false,false],["P",[23,23],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[23,23],true,false,false],["p",[1],false,false,false]]],["ins_fc24_eskf_eskf_update_mag","update_mag",true,false,[["x",[24],false,false,false],["P",[23,23],false,false,false],["z",[3],false,false,false],["x_new",[24],true,false,false],["P_new",[23,23],true,false,false],["p",[1],false,false,false]]],["ins_fc24_eskf_eskf_update_airspeed","update_airspeed",true,false,[["x",[24],false,false,false],["P",[23,23],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[23,23],true,false,false],["p",[1],false,false,false]]],["ins_fc24_eskf_eskf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["z_mag",["steps",3],false,false,false],["z_airspeed",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[24],false,false,false],["P0",[23,23],false,false,false],["xs",["steps",24],true,false,false],["Ps",["steps",23,23],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["update_mag",9,"S is not positive definite: the variance s of measurement 0 (magx) of the sequential update is not positive",[]],["update_mag",10,"S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive",[]],["update_mag",11,"S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive",[]],["update_airspeed",12,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]],"spaces":{"sizes":{"storage":24,"tangent":23},"arrays":{"x":"storage","P":"tangent","x_new":"storage","P_new":"tangent","x0":"storage","P0":"tangent","xs":"storage","Ps":"tangent"}}}
  */
 #include <math.h>
@@ -74,6 +75,36 @@
 #define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
 #else
 #define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
+#ifndef DERIVE_VECTOR
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
+#define DERIVE_VECTOR 1
+#else
+#define DERIVE_VECTOR 0
+#endif
+#endif
+#if DERIVE_VECTOR
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
+#include <immintrin.h>
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
+#else
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
 #endif
 
@@ -250,285 +281,1227 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t166 = 1e-10*p[0];
     const double t167 = 1e-08*p[0];
     const double t168 = 0.01*p[0];
-    const double t169 = DERIVE_FMA(P[9], t71, DERIVE_FMA(P[2], t105, DERIVE_FMA(P[1], t104, DERIVE_FNMA(P[11], t107, DERIVE_FMA(P[10], t106, P[0]*t103)))));
-    const double t170 = DERIVE_FNMA(P[34], t107, DERIVE_FMA(P[33], t106, DERIVE_FMA(P[32], t71, DERIVE_FMA(P[25], t105, DERIVE_FMA(P[24], t104, P[1]*t103)))));
-    const double t171 = DERIVE_FNMA(P[57], t107, DERIVE_FMA(P[56], t106, DERIVE_FMA(P[55], t71, DERIVE_FMA(P[48], t105, DERIVE_FMA(P[2], t103, P[25]*t104)))));
-    const double t172 = DERIVE_FNMA(P[80], t107, DERIVE_FMA(P[79], t106, DERIVE_FMA(P[78], t71, DERIVE_FMA(P[49], t105, DERIVE_FMA(P[3], t103, P[26]*t104)))));
-    const double t173 = DERIVE_FMA(P[50], t105, DERIVE_FMA(P[4], t103, DERIVE_FMA(P[27], t104, DERIVE_FNMA(P[103], t107, DERIVE_FMA(P[102], t106, P[101]*t71)))));
-    const double t174 = DERIVE_FMA(P[5], t103, DERIVE_FMA(P[51], t105, DERIVE_FMA(P[28], t104, DERIVE_FNMA(P[126], t107, DERIVE_FMA(P[125], t106, P[124]*t71)))));
-    const double t175 = DERIVE_FMA(P[6], t103, DERIVE_FMA(P[52], t105, DERIVE_FMA(P[29], t104, DERIVE_FNMA(P[149], t107, DERIVE_FMA(P[148], t106, P[147]*t71)))));
-    const double t176 = DERIVE_FMA(P[7], t103, DERIVE_FMA(P[53], t105, DERIVE_FMA(P[30], t104, DERIVE_FNMA(P[172], t107, DERIVE_FMA(P[171], t106, P[170]*t71)))));
-    const double t177 = DERIVE_FMA(P[8], t103, DERIVE_FMA(P[54], t105, DERIVE_FMA(P[31], t104, DERIVE_FNMA(P[195], t107, DERIVE_FMA(P[194], t106, P[193]*t71)))));
-    const double t178 = P[217]*t106;
-    const double t179 = P[218]*t107;
-    const double t180 = DERIVE_FMA(P[9], t103, DERIVE_FMA(P[55], t105, DERIVE_FMA(P[32], t104, DERIVE_FMA(P[216], t71, t178 - t179))));
-    const double t181 = P[217]*t71;
-    const double t182 = DERIVE_FMA(P[56], t105, DERIVE_FMA(P[33], t104, DERIVE_FNMA(P[241], t107, DERIVE_FMA(P[240], t106, DERIVE_FMA(P[10], t103, t181)))));
-    const double t183 = P[218]*t71;
-    const double t184 = DERIVE_FMA(P[57], t105, DERIVE_FMA(P[34], t104, DERIVE_FNMA(P[264], t107, DERIVE_FMA(P[241], t106, DERIVE_FMA(P[11], t103, t183)))));
-    const double t185 = DERIVE_FMA(P[58], t105, DERIVE_FMA(P[35], t104, DERIVE_FNMA(P[265], t107, DERIVE_FMA(P[242], t106, DERIVE_FMA(P[219], t71, P[12]*t103)))));
-    const double t186 = DERIVE_FMA(P[59], t105, DERIVE_FMA(P[36], t104, DERIVE_FNMA(P[266], t107, DERIVE_FMA(P[243], t106, DERIVE_FMA(P[220], t71, P[13]*t103)))));
-    const double t187 = DERIVE_FMA(P[60], t105, DERIVE_FMA(P[37], t104, DERIVE_FNMA(P[267], t107, DERIVE_FMA(P[244], t106, DERIVE_FMA(P[221], t71, P[14]*t103)))));
-    const double t188 = DERIVE_FMA(P[61], t105, DERIVE_FMA(P[38], t104, DERIVE_FNMA(P[268], t107, DERIVE_FMA(P[245], t106, DERIVE_FMA(P[222], t71, P[15]*t103)))));
-    const double t189 = DERIVE_FMA(P[62], t105, DERIVE_FMA(P[39], t104, DERIVE_FNMA(P[269], t107, DERIVE_FMA(P[246], t106, DERIVE_FMA(P[223], t71, P[16]*t103)))));
-    const double t190 = DERIVE_FMA(P[63], t105, DERIVE_FMA(P[40], t104, DERIVE_FNMA(P[270], t107, DERIVE_FMA(P[247], t106, DERIVE_FMA(P[224], t71, P[17]*t103)))));
-    const double t191 = DERIVE_FMA(P[64], t105, DERIVE_FMA(P[41], t104, DERIVE_FNMA(P[271], t107, DERIVE_FMA(P[248], t106, DERIVE_FMA(P[225], t71, P[18]*t103)))));
-    const double t192 = DERIVE_FMA(P[65], t105, DERIVE_FMA(P[42], t104, DERIVE_FNMA(P[272], t107, DERIVE_FMA(P[249], t106, DERIVE_FMA(P[226], t71, P[19]*t103)))));
-    const double t193 = DERIVE_FMA(P[66], t105, DERIVE_FMA(P[43], t104, DERIVE_FNMA(P[273], t107, DERIVE_FMA(P[250], t106, DERIVE_FMA(P[227], t71, P[20]*t103)))));
-    const double t194 = DERIVE_FMA(P[67], t105, DERIVE_FMA(P[44], t104, DERIVE_FNMA(P[274], t107, DERIVE_FMA(P[251], t106, DERIVE_FMA(P[228], t71, P[21]*t103)))));
-    const double t195 = DERIVE_FMA(P[68], t105, DERIVE_FMA(P[45], t104, DERIVE_FNMA(P[275], t107, DERIVE_FMA(P[252], t106, DERIVE_FMA(P[22], t103, P[229]*t71)))));
-    const double t196 = DERIVE_FNMA(P[9], t106, DERIVE_FMA(P[2], t113, DERIVE_FMA(P[1], t112, DERIVE_FMA(P[11], t114, DERIVE_FMA(P[10], t71, P[0]*t110)))));
-    const double t197 = DERIVE_FMA(P[34], t114, DERIVE_FMA(P[33], t71, DERIVE_FNMA(P[32], t106, DERIVE_FMA(P[25], t113, DERIVE_FMA(P[24], t112, P[1]*t110)))));
-    const double t198 = DERIVE_FMA(P[57], t114, DERIVE_FMA(P[56], t71, DERIVE_FNMA(P[55], t106, DERIVE_FMA(P[48], t113, DERIVE_FMA(P[2], t110, P[25]*t112)))));
-    const double t199 = DERIVE_FMA(P[80], t114, DERIVE_FMA(P[79], t71, DERIVE_FNMA(P[78], t106, DERIVE_FMA(P[49], t113, DERIVE_FMA(P[3], t110, P[26]*t112)))));
-    const double t200 = DERIVE_FMA(P[50], t113, DERIVE_FMA(P[4], t110, DERIVE_FMA(P[27], t112, DERIVE_FMA(P[103], t114, DERIVE_FNMA(P[101], t106, P[102]*t71)))));
-    const double t201 = DERIVE_FMA(P[5], t110, DERIVE_FMA(P[51], t113, DERIVE_FMA(P[28], t112, DERIVE_FMA(P[126], t114, DERIVE_FNMA(P[124], t106, P[125]*t71)))));
-    const double t202 = DERIVE_FMA(P[6], t110, DERIVE_FMA(P[52], t113, DERIVE_FMA(P[29], t112, DERIVE_FMA(P[149], t114, DERIVE_FNMA(P[147], t106, P[148]*t71)))));
-    const double t203 = DERIVE_FMA(P[7], t110, DERIVE_FMA(P[53], t113, DERIVE_FMA(P[30], t112, DERIVE_FMA(P[172], t114, DERIVE_FNMA(P[170], t106, P[171]*t71)))));
-    const double t204 = DERIVE_FMA(P[8], t110, DERIVE_FMA(P[54], t113, DERIVE_FMA(P[31], t112, DERIVE_FMA(P[195], t114, DERIVE_FNMA(P[193], t106, P[194]*t71)))));
-    const double t205 = DERIVE_FMA(P[9], t110, DERIVE_FMA(P[55], t113, DERIVE_FMA(P[32], t112, DERIVE_FMA(P[218], t114, DERIVE_FNMA(P[216], t106, t181)))));
-    const double t206 = P[241]*t114;
-    const double t207 = DERIVE_FMA(P[56], t113, DERIVE_FMA(P[33], t112, DERIVE_FMA(P[240], t71, DERIVE_FMA(P[10], t110, t206 - t178))));
-    const double t208 = P[241]*t71;
-    const double t209 = DERIVE_FMA(P[57], t113, DERIVE_FMA(P[34], t112, DERIVE_FMA(P[264], t114, DERIVE_FNMA(P[218], t106, DERIVE_FMA(P[11], t110, t208)))));
-    const double t210 = DERIVE_FMA(P[58], t113, DERIVE_FMA(P[35], t112, DERIVE_FMA(P[265], t114, DERIVE_FMA(P[242], t71, DERIVE_FNMA(P[219], t106, P[12]*t110)))));
-    const double t211 = DERIVE_FMA(P[59], t113, DERIVE_FMA(P[36], t112, DERIVE_FMA(P[266], t114, DERIVE_FMA(P[243], t71, DERIVE_FNMA(P[220], t106, P[13]*t110)))));
-    const double t212 = DERIVE_FMA(P[60], t113, DERIVE_FMA(P[37], t112, DERIVE_FMA(P[267], t114, DERIVE_FMA(P[244], t71, DERIVE_FNMA(P[221], t106, P[14]*t110)))));
-    const double t213 = DERIVE_FMA(P[61], t113, DERIVE_FMA(P[38], t112, DERIVE_FMA(P[268], t114, DERIVE_FMA(P[245], t71, DERIVE_FNMA(P[222], t106, P[15]*t110)))));
-    const double t214 = DERIVE_FMA(P[62], t113, DERIVE_FMA(P[39], t112, DERIVE_FMA(P[269], t114, DERIVE_FMA(P[246], t71, DERIVE_FNMA(P[223], t106, P[16]*t110)))));
-    const double t215 = DERIVE_FMA(P[63], t113, DERIVE_FMA(P[40], t112, DERIVE_FMA(P[270], t114, DERIVE_FMA(P[247], t71, DERIVE_FNMA(P[224], t106, P[17]*t110)))));
-    const double t216 = DERIVE_FMA(P[64], t113, DERIVE_FMA(P[41], t112, DERIVE_FMA(P[271], t114, DERIVE_FMA(P[248], t71, DERIVE_FNMA(P[225], t106, P[18]*t110)))));
-    const double t217 = DERIVE_FMA(P[65], t113, DERIVE_FMA(P[42], t112, DERIVE_FMA(P[272], t114, DERIVE_FMA(P[249], t71, DERIVE_FNMA(P[226], t106, P[19]*t110)))));
-    const double t218 = DERIVE_FMA(P[66], t113, DERIVE_FMA(P[43], t112, DERIVE_FMA(P[273], t114, DERIVE_FMA(P[250], t71, DERIVE_FNMA(P[227], t106, P[20]*t110)))));
-    const double t219 = DERIVE_FMA(P[67], t113, DERIVE_FMA(P[44], t112, DERIVE_FMA(P[274], t114, DERIVE_FMA(P[251], t71, DERIVE_FNMA(P[228], t106, P[21]*t110)))));
-    const double t220 = DERIVE_FMA(P[68], t113, DERIVE_FMA(P[45], t112, DERIVE_FMA(P[275], t114, DERIVE_FMA(P[252], t71, DERIVE_FNMA(P[229], t106, P[22]*t110)))));
-    const double t221 = DERIVE_FMA(P[9], t107, DERIVE_FMA(P[2], t118, DERIVE_FMA(P[1], t117, DERIVE_FMA(P[11], t71, DERIVE_FNMA(P[10], t114, P[0]*t116)))));
-    const double t222 = DERIVE_FMA(P[34], t71, DERIVE_FNMA(P[33], t114, DERIVE_FMA(P[32], t107, DERIVE_FMA(P[25], t118, DERIVE_FMA(P[24], t117, P[1]*t116)))));
-    const double t223 = DERIVE_FMA(P[57], t71, DERIVE_FNMA(P[56], t114, DERIVE_FMA(P[55], t107, DERIVE_FMA(P[48], t118, DERIVE_FMA(P[2], t116, P[25]*t117)))));
-    const double t224 = DERIVE_FMA(P[80], t71, DERIVE_FNMA(P[79], t114, DERIVE_FMA(P[78], t107, DERIVE_FMA(P[49], t118, DERIVE_FMA(P[3], t116, P[26]*t117)))));
-    const double t225 = DERIVE_FMA(P[50], t118, DERIVE_FMA(P[4], t116, DERIVE_FMA(P[27], t117, DERIVE_FMA(P[103], t71, DERIVE_FNMA(P[102], t114, P[101]*t107)))));
-    const double t226 = DERIVE_FMA(P[5], t116, DERIVE_FMA(P[51], t118, DERIVE_FMA(P[28], t117, DERIVE_FMA(P[126], t71, DERIVE_FNMA(P[125], t114, P[124]*t107)))));
-    const double t227 = DERIVE_FMA(P[6], t116, DERIVE_FMA(P[52], t118, DERIVE_FMA(P[29], t117, DERIVE_FMA(P[149], t71, DERIVE_FNMA(P[148], t114, P[147]*t107)))));
-    const double t228 = DERIVE_FMA(P[7], t116, DERIVE_FMA(P[53], t118, DERIVE_FMA(P[30], t117, DERIVE_FMA(P[172], t71, DERIVE_FNMA(P[171], t114, P[170]*t107)))));
-    const double t229 = DERIVE_FMA(P[8], t116, DERIVE_FMA(P[54], t118, DERIVE_FMA(P[31], t117, DERIVE_FMA(P[195], t71, DERIVE_FNMA(P[194], t114, P[193]*t107)))));
-    const double t230 = DERIVE_FMA(P[9], t116, DERIVE_FMA(P[55], t118, DERIVE_FMA(P[32], t117, DERIVE_FNMA(P[217], t114, DERIVE_FMA(P[216], t107, t183)))));
-    const double t231 = DERIVE_FMA(P[56], t118, DERIVE_FMA(P[33], t117, DERIVE_FNMA(P[240], t114, DERIVE_FMA(P[217], t107, DERIVE_FMA(P[10], t116, t208)))));
-    const double t232 = DERIVE_FMA(P[57], t118, DERIVE_FMA(P[34], t117, DERIVE_FMA(P[264], t71, DERIVE_FMA(P[11], t116, t179 - t206))));
-    const double t233 = DERIVE_FMA(P[58], t118, DERIVE_FMA(P[35], t117, DERIVE_FMA(P[265], t71, DERIVE_FNMA(P[242], t114, DERIVE_FMA(P[219], t107, P[12]*t116)))));
-    const double t234 = DERIVE_FMA(P[59], t118, DERIVE_FMA(P[36], t117, DERIVE_FMA(P[266], t71, DERIVE_FNMA(P[243], t114, DERIVE_FMA(P[220], t107, P[13]*t116)))));
-    const double t235 = DERIVE_FMA(P[60], t118, DERIVE_FMA(P[37], t117, DERIVE_FMA(P[267], t71, DERIVE_FNMA(P[244], t114, DERIVE_FMA(P[221], t107, P[14]*t116)))));
-    const double t236 = DERIVE_FMA(P[61], t118, DERIVE_FMA(P[38], t117, DERIVE_FMA(P[268], t71, DERIVE_FNMA(P[245], t114, DERIVE_FMA(P[222], t107, P[15]*t116)))));
-    const double t237 = DERIVE_FMA(P[62], t118, DERIVE_FMA(P[39], t117, DERIVE_FMA(P[269], t71, DERIVE_FNMA(P[246], t114, DERIVE_FMA(P[223], t107, P[16]*t116)))));
-    const double t238 = DERIVE_FMA(P[63], t118, DERIVE_FMA(P[40], t117, DERIVE_FMA(P[270], t71, DERIVE_FNMA(P[247], t114, DERIVE_FMA(P[224], t107, P[17]*t116)))));
-    const double t239 = DERIVE_FMA(P[64], t118, DERIVE_FMA(P[41], t117, DERIVE_FMA(P[271], t71, DERIVE_FNMA(P[248], t114, DERIVE_FMA(P[225], t107, P[18]*t116)))));
-    const double t240 = DERIVE_FMA(P[65], t118, DERIVE_FMA(P[42], t117, DERIVE_FMA(P[272], t71, DERIVE_FNMA(P[249], t114, DERIVE_FMA(P[226], t107, P[19]*t116)))));
-    const double t241 = DERIVE_FMA(P[66], t118, DERIVE_FMA(P[43], t117, DERIVE_FMA(P[273], t71, DERIVE_FNMA(P[250], t114, DERIVE_FMA(P[227], t107, P[20]*t116)))));
-    const double t242 = DERIVE_FMA(P[67], t118, DERIVE_FMA(P[44], t117, DERIVE_FMA(P[274], t71, DERIVE_FNMA(P[251], t114, DERIVE_FMA(P[228], t107, P[21]*t116)))));
-    const double t243 = DERIVE_FMA(P[68], t118, DERIVE_FMA(P[45], t117, DERIVE_FMA(P[275], t71, DERIVE_FNMA(P[252], t114, DERIVE_FMA(P[22], t116, P[229]*t107)))));
-    const double t244 = DERIVE_FMA(P[2], t121, DERIVE_FMA(P[1], t120, DERIVE_FNMA(P[14], t124, DERIVE_FNMA(P[13], t123, DERIVE_FNMA(P[12], t122, DERIVE_FMA(P[0], t119, P[3]))))));
-    const double t245 = DERIVE_FNMA(P[37], t124, DERIVE_FNMA(P[36], t123, DERIVE_FNMA(P[35], t122, DERIVE_FMA(P[25], t121, DERIVE_FMA(P[24], t120, DERIVE_FMA(P[1], t119, P[26]))))));
-    const double t246 = DERIVE_FNMA(P[60], t124, DERIVE_FNMA(P[59], t123, DERIVE_FNMA(P[58], t122, DERIVE_FMA(P[48], t121, DERIVE_FMA(P[2], t119, DERIVE_FMA(P[25], t120, P[49]))))));
-    const double t247 = DERIVE_FNMA(P[83], t124, DERIVE_FNMA(P[82], t123, DERIVE_FNMA(P[81], t122, DERIVE_FMA(P[49], t121, DERIVE_FMA(P[3], t119, DERIVE_FMA(P[26], t120, P[72]))))));
-    const double t248 = DERIVE_FMA(P[50], t121, DERIVE_FMA(P[4], t119, DERIVE_FMA(P[27], t120, DERIVE_FNMA(P[106], t124, DERIVE_FNMA(P[105], t123, DERIVE_FNMA(P[104], t122, P[73]))))));
-    const double t249 = DERIVE_FMA(P[5], t119, DERIVE_FMA(P[51], t121, DERIVE_FMA(P[28], t120, DERIVE_FNMA(P[129], t124, DERIVE_FNMA(P[128], t123, DERIVE_FNMA(P[127], t122, P[74]))))));
-    const double t250 = DERIVE_FMA(P[6], t119, DERIVE_FMA(P[52], t121, DERIVE_FMA(P[29], t120, DERIVE_FNMA(P[152], t124, DERIVE_FNMA(P[151], t123, DERIVE_FNMA(P[150], t122, P[75]))))));
-    const double t251 = DERIVE_FMA(P[7], t119, DERIVE_FMA(P[53], t121, DERIVE_FMA(P[30], t120, DERIVE_FNMA(P[175], t124, DERIVE_FNMA(P[174], t123, DERIVE_FNMA(P[173], t122, P[76]))))));
-    const double t252 = DERIVE_FMA(P[8], t119, DERIVE_FMA(P[54], t121, DERIVE_FMA(P[31], t120, DERIVE_FNMA(P[198], t124, DERIVE_FNMA(P[197], t123, DERIVE_FNMA(P[196], t122, P[77]))))));
-    const double t253 = DERIVE_FMA(P[9], t119, DERIVE_FMA(P[55], t121, DERIVE_FMA(P[32], t120, DERIVE_FNMA(P[221], t124, DERIVE_FNMA(P[220], t123, DERIVE_FNMA(P[219], t122, P[78]))))));
-    const double t254 = DERIVE_FMA(P[56], t121, DERIVE_FMA(P[33], t120, DERIVE_FNMA(P[244], t124, DERIVE_FNMA(P[243], t123, DERIVE_FNMA(P[242], t122, DERIVE_FMA(P[10], t119, P[79]))))));
-    const double t255 = DERIVE_FMA(P[57], t121, DERIVE_FMA(P[34], t120, DERIVE_FNMA(P[267], t124, DERIVE_FNMA(P[266], t123, DERIVE_FNMA(P[265], t122, DERIVE_FMA(P[11], t119, P[80]))))));
-    const double t256 = DERIVE_FMA(P[58], t121, DERIVE_FMA(P[35], t120, DERIVE_FNMA(P[290], t124, DERIVE_FNMA(P[289], t123, DERIVE_FNMA(P[288], t122, DERIVE_FMA(P[12], t119, P[81]))))));
-    const double t257 = DERIVE_FMA(P[59], t121, DERIVE_FMA(P[36], t120, DERIVE_FNMA(P[313], t124, DERIVE_FNMA(P[312], t123, DERIVE_FNMA(P[289], t122, DERIVE_FMA(P[13], t119, P[82]))))));
-    const double t258 = DERIVE_FMA(P[60], t121, DERIVE_FMA(P[37], t120, DERIVE_FNMA(P[336], t124, DERIVE_FNMA(P[313], t123, DERIVE_FNMA(P[290], t122, DERIVE_FMA(P[14], t119, P[83]))))));
-    const double t259 = DERIVE_FMA(P[61], t121, DERIVE_FMA(P[38], t120, DERIVE_FNMA(P[337], t124, DERIVE_FNMA(P[314], t123, DERIVE_FNMA(P[291], t122, DERIVE_FMA(P[15], t119, P[84]))))));
-    const double t260 = DERIVE_FMA(P[62], t121, DERIVE_FMA(P[39], t120, DERIVE_FNMA(P[338], t124, DERIVE_FNMA(P[315], t123, DERIVE_FNMA(P[292], t122, DERIVE_FMA(P[16], t119, P[85]))))));
-    const double t261 = DERIVE_FMA(P[63], t121, DERIVE_FMA(P[40], t120, DERIVE_FNMA(P[339], t124, DERIVE_FNMA(P[316], t123, DERIVE_FNMA(P[293], t122, DERIVE_FMA(P[17], t119, P[86]))))));
-    const double t262 = DERIVE_FMA(P[64], t121, DERIVE_FMA(P[41], t120, DERIVE_FNMA(P[340], t124, DERIVE_FNMA(P[317], t123, DERIVE_FNMA(P[294], t122, DERIVE_FMA(P[18], t119, P[87]))))));
-    const double t263 = DERIVE_FMA(P[65], t121, DERIVE_FMA(P[42], t120, DERIVE_FNMA(P[341], t124, DERIVE_FNMA(P[318], t123, DERIVE_FNMA(P[295], t122, DERIVE_FMA(P[19], t119, P[88]))))));
-    const double t264 = DERIVE_FMA(P[66], t121, DERIVE_FMA(P[43], t120, DERIVE_FNMA(P[342], t124, DERIVE_FNMA(P[319], t123, DERIVE_FNMA(P[296], t122, DERIVE_FMA(P[20], t119, P[89]))))));
-    const double t265 = DERIVE_FMA(P[67], t121, DERIVE_FMA(P[44], t120, DERIVE_FNMA(P[343], t124, DERIVE_FNMA(P[320], t123, DERIVE_FNMA(P[297], t122, DERIVE_FMA(P[21], t119, P[90]))))));
-    const double t266 = DERIVE_FMA(P[68], t121, DERIVE_FMA(P[45], t120, DERIVE_FNMA(P[344], t124, DERIVE_FNMA(P[321], t123, DERIVE_FNMA(P[298], t122, DERIVE_FMA(P[22], t119, P[91]))))));
-    const double t267 = DERIVE_FMA(P[2], t127, DERIVE_FMA(P[1], t126, DERIVE_FNMA(P[14], t130, DERIVE_FNMA(P[13], t129, DERIVE_FNMA(P[12], t128, DERIVE_FMA(P[0], t125, P[4]))))));
-    const double t268 = DERIVE_FNMA(P[37], t130, DERIVE_FNMA(P[36], t129, DERIVE_FNMA(P[35], t128, DERIVE_FMA(P[25], t127, DERIVE_FMA(P[24], t126, DERIVE_FMA(P[1], t125, P[27]))))));
-    const double t269 = DERIVE_FNMA(P[60], t130, DERIVE_FNMA(P[59], t129, DERIVE_FNMA(P[58], t128, DERIVE_FMA(P[48], t127, DERIVE_FMA(P[2], t125, DERIVE_FMA(P[25], t126, P[50]))))));
-    const double t270 = DERIVE_FNMA(P[83], t130, DERIVE_FNMA(P[82], t129, DERIVE_FNMA(P[81], t128, DERIVE_FMA(P[49], t127, DERIVE_FMA(P[3], t125, DERIVE_FMA(P[26], t126, P[73]))))));
-    const double t271 = DERIVE_FMA(P[50], t127, DERIVE_FMA(P[4], t125, DERIVE_FMA(P[27], t126, DERIVE_FNMA(P[106], t130, DERIVE_FNMA(P[105], t129, DERIVE_FNMA(P[104], t128, P[96]))))));
-    const double t272 = DERIVE_FMA(P[5], t125, DERIVE_FMA(P[51], t127, DERIVE_FMA(P[28], t126, DERIVE_FNMA(P[129], t130, DERIVE_FNMA(P[128], t129, DERIVE_FNMA(P[127], t128, P[97]))))));
-    const double t273 = DERIVE_FMA(P[6], t125, DERIVE_FMA(P[52], t127, DERIVE_FMA(P[29], t126, DERIVE_FNMA(P[152], t130, DERIVE_FNMA(P[151], t129, DERIVE_FNMA(P[150], t128, P[98]))))));
-    const double t274 = DERIVE_FMA(P[7], t125, DERIVE_FMA(P[53], t127, DERIVE_FMA(P[30], t126, DERIVE_FNMA(P[175], t130, DERIVE_FNMA(P[174], t129, DERIVE_FNMA(P[173], t128, P[99]))))));
-    const double t275 = DERIVE_FMA(P[8], t125, DERIVE_FMA(P[54], t127, DERIVE_FMA(P[31], t126, DERIVE_FNMA(P[198], t130, DERIVE_FNMA(P[197], t129, DERIVE_FNMA(P[196], t128, P[100]))))));
-    const double t276 = DERIVE_FMA(P[9], t125, DERIVE_FMA(P[55], t127, DERIVE_FMA(P[32], t126, DERIVE_FNMA(P[221], t130, DERIVE_FNMA(P[220], t129, DERIVE_FNMA(P[219], t128, P[101]))))));
-    const double t277 = DERIVE_FMA(P[56], t127, DERIVE_FMA(P[33], t126, DERIVE_FNMA(P[244], t130, DERIVE_FNMA(P[243], t129, DERIVE_FNMA(P[242], t128, DERIVE_FMA(P[10], t125, P[102]))))));
-    const double t278 = DERIVE_FMA(P[57], t127, DERIVE_FMA(P[34], t126, DERIVE_FNMA(P[267], t130, DERIVE_FNMA(P[266], t129, DERIVE_FNMA(P[265], t128, DERIVE_FMA(P[11], t125, P[103]))))));
-    const double t279 = DERIVE_FMA(P[58], t127, DERIVE_FMA(P[35], t126, DERIVE_FNMA(P[290], t130, DERIVE_FNMA(P[289], t129, DERIVE_FNMA(P[288], t128, DERIVE_FMA(P[12], t125, P[104]))))));
-    const double t280 = DERIVE_FMA(P[59], t127, DERIVE_FMA(P[36], t126, DERIVE_FNMA(P[313], t130, DERIVE_FNMA(P[312], t129, DERIVE_FNMA(P[289], t128, DERIVE_FMA(P[13], t125, P[105]))))));
-    const double t281 = DERIVE_FMA(P[60], t127, DERIVE_FMA(P[37], t126, DERIVE_FNMA(P[336], t130, DERIVE_FNMA(P[313], t129, DERIVE_FNMA(P[290], t128, DERIVE_FMA(P[14], t125, P[106]))))));
-    const double t282 = DERIVE_FMA(P[61], t127, DERIVE_FMA(P[38], t126, DERIVE_FNMA(P[337], t130, DERIVE_FNMA(P[314], t129, DERIVE_FNMA(P[291], t128, DERIVE_FMA(P[15], t125, P[107]))))));
-    const double t283 = DERIVE_FMA(P[62], t127, DERIVE_FMA(P[39], t126, DERIVE_FNMA(P[338], t130, DERIVE_FNMA(P[315], t129, DERIVE_FNMA(P[292], t128, DERIVE_FMA(P[16], t125, P[108]))))));
-    const double t284 = DERIVE_FMA(P[63], t127, DERIVE_FMA(P[40], t126, DERIVE_FNMA(P[339], t130, DERIVE_FNMA(P[316], t129, DERIVE_FNMA(P[293], t128, DERIVE_FMA(P[17], t125, P[109]))))));
-    const double t285 = DERIVE_FMA(P[64], t127, DERIVE_FMA(P[41], t126, DERIVE_FNMA(P[340], t130, DERIVE_FNMA(P[317], t129, DERIVE_FNMA(P[294], t128, DERIVE_FMA(P[18], t125, P[110]))))));
-    const double t286 = DERIVE_FMA(P[65], t127, DERIVE_FMA(P[42], t126, DERIVE_FNMA(P[341], t130, DERIVE_FNMA(P[318], t129, DERIVE_FNMA(P[295], t128, DERIVE_FMA(P[19], t125, P[111]))))));
-    const double t287 = DERIVE_FMA(P[66], t127, DERIVE_FMA(P[43], t126, DERIVE_FNMA(P[342], t130, DERIVE_FNMA(P[319], t129, DERIVE_FNMA(P[296], t128, DERIVE_FMA(P[20], t125, P[112]))))));
-    const double t288 = DERIVE_FMA(P[67], t127, DERIVE_FMA(P[44], t126, DERIVE_FNMA(P[343], t130, DERIVE_FNMA(P[320], t129, DERIVE_FNMA(P[297], t128, DERIVE_FMA(P[21], t125, P[113]))))));
-    const double t289 = DERIVE_FMA(P[68], t127, DERIVE_FMA(P[45], t126, DERIVE_FNMA(P[344], t130, DERIVE_FNMA(P[321], t129, DERIVE_FNMA(P[298], t128, DERIVE_FMA(P[22], t125, P[114]))))));
-    const double t290 = DERIVE_FMA(P[2], t133, DERIVE_FMA(P[1], t132, DERIVE_FNMA(P[14], t136, DERIVE_FNMA(P[13], t135, DERIVE_FNMA(P[12], t134, DERIVE_FMA(P[0], t131, P[5]))))));
-    const double t291 = DERIVE_FNMA(P[37], t136, DERIVE_FNMA(P[36], t135, DERIVE_FNMA(P[35], t134, DERIVE_FMA(P[25], t133, DERIVE_FMA(P[24], t132, DERIVE_FMA(P[1], t131, P[28]))))));
-    const double t292 = DERIVE_FNMA(P[60], t136, DERIVE_FNMA(P[59], t135, DERIVE_FNMA(P[58], t134, DERIVE_FMA(P[48], t133, DERIVE_FMA(P[2], t131, DERIVE_FMA(P[25], t132, P[51]))))));
-    const double t293 = DERIVE_FNMA(P[83], t136, DERIVE_FNMA(P[82], t135, DERIVE_FNMA(P[81], t134, DERIVE_FMA(P[49], t133, DERIVE_FMA(P[3], t131, DERIVE_FMA(P[26], t132, P[74]))))));
-    const double t294 = DERIVE_FMA(P[50], t133, DERIVE_FMA(P[4], t131, DERIVE_FMA(P[27], t132, DERIVE_FNMA(P[106], t136, DERIVE_FNMA(P[105], t135, DERIVE_FNMA(P[104], t134, P[97]))))));
-    const double t295 = DERIVE_FMA(P[5], t131, DERIVE_FMA(P[51], t133, DERIVE_FMA(P[28], t132, DERIVE_FNMA(P[129], t136, DERIVE_FNMA(P[128], t135, DERIVE_FNMA(P[127], t134, P[120]))))));
-    const double t296 = DERIVE_FMA(P[6], t131, DERIVE_FMA(P[52], t133, DERIVE_FMA(P[29], t132, DERIVE_FNMA(P[152], t136, DERIVE_FNMA(P[151], t135, DERIVE_FNMA(P[150], t134, P[121]))))));
-    const double t297 = DERIVE_FMA(P[7], t131, DERIVE_FMA(P[53], t133, DERIVE_FMA(P[30], t132, DERIVE_FNMA(P[175], t136, DERIVE_FNMA(P[174], t135, DERIVE_FNMA(P[173], t134, P[122]))))));
-    const double t298 = DERIVE_FMA(P[8], t131, DERIVE_FMA(P[54], t133, DERIVE_FMA(P[31], t132, DERIVE_FNMA(P[198], t136, DERIVE_FNMA(P[197], t135, DERIVE_FNMA(P[196], t134, P[123]))))));
-    const double t299 = DERIVE_FMA(P[9], t131, DERIVE_FMA(P[55], t133, DERIVE_FMA(P[32], t132, DERIVE_FNMA(P[221], t136, DERIVE_FNMA(P[220], t135, DERIVE_FNMA(P[219], t134, P[124]))))));
-    const double t300 = DERIVE_FMA(P[56], t133, DERIVE_FMA(P[33], t132, DERIVE_FNMA(P[244], t136, DERIVE_FNMA(P[243], t135, DERIVE_FNMA(P[242], t134, DERIVE_FMA(P[10], t131, P[125]))))));
-    const double t301 = DERIVE_FMA(P[57], t133, DERIVE_FMA(P[34], t132, DERIVE_FNMA(P[267], t136, DERIVE_FNMA(P[266], t135, DERIVE_FNMA(P[265], t134, DERIVE_FMA(P[11], t131, P[126]))))));
-    const double t302 = DERIVE_FMA(P[58], t133, DERIVE_FMA(P[35], t132, DERIVE_FNMA(P[290], t136, DERIVE_FNMA(P[289], t135, DERIVE_FNMA(P[288], t134, DERIVE_FMA(P[12], t131, P[127]))))));
-    const double t303 = DERIVE_FMA(P[59], t133, DERIVE_FMA(P[36], t132, DERIVE_FNMA(P[313], t136, DERIVE_FNMA(P[312], t135, DERIVE_FNMA(P[289], t134, DERIVE_FMA(P[13], t131, P[128]))))));
-    const double t304 = DERIVE_FMA(P[60], t133, DERIVE_FMA(P[37], t132, DERIVE_FNMA(P[336], t136, DERIVE_FNMA(P[313], t135, DERIVE_FNMA(P[290], t134, DERIVE_FMA(P[14], t131, P[129]))))));
-    const double t305 = DERIVE_FMA(P[61], t133, DERIVE_FMA(P[38], t132, DERIVE_FNMA(P[337], t136, DERIVE_FNMA(P[314], t135, DERIVE_FNMA(P[291], t134, DERIVE_FMA(P[15], t131, P[130]))))));
-    const double t306 = DERIVE_FMA(P[62], t133, DERIVE_FMA(P[39], t132, DERIVE_FNMA(P[338], t136, DERIVE_FNMA(P[315], t135, DERIVE_FNMA(P[292], t134, DERIVE_FMA(P[16], t131, P[131]))))));
-    const double t307 = DERIVE_FMA(P[63], t133, DERIVE_FMA(P[40], t132, DERIVE_FNMA(P[339], t136, DERIVE_FNMA(P[316], t135, DERIVE_FNMA(P[293], t134, DERIVE_FMA(P[17], t131, P[132]))))));
-    const double t308 = DERIVE_FMA(P[64], t133, DERIVE_FMA(P[41], t132, DERIVE_FNMA(P[340], t136, DERIVE_FNMA(P[317], t135, DERIVE_FNMA(P[294], t134, DERIVE_FMA(P[18], t131, P[133]))))));
-    const double t309 = DERIVE_FMA(P[65], t133, DERIVE_FMA(P[42], t132, DERIVE_FNMA(P[341], t136, DERIVE_FNMA(P[318], t135, DERIVE_FNMA(P[295], t134, DERIVE_FMA(P[19], t131, P[134]))))));
-    const double t310 = DERIVE_FMA(P[66], t133, DERIVE_FMA(P[43], t132, DERIVE_FNMA(P[342], t136, DERIVE_FNMA(P[319], t135, DERIVE_FNMA(P[296], t134, DERIVE_FMA(P[20], t131, P[135]))))));
-    const double t311 = DERIVE_FMA(P[67], t133, DERIVE_FMA(P[44], t132, DERIVE_FNMA(P[343], t136, DERIVE_FNMA(P[320], t135, DERIVE_FNMA(P[297], t134, DERIVE_FMA(P[21], t131, P[136]))))));
-    const double t312 = DERIVE_FMA(P[68], t133, DERIVE_FMA(P[45], t132, DERIVE_FNMA(P[344], t136, DERIVE_FNMA(P[321], t135, DERIVE_FNMA(P[298], t134, DERIVE_FMA(P[22], t131, P[137]))))));
-    const double t313 = DERIVE_FMA(P[72], p[0], P[75]);
-    const double t315 = DERIVE_FMA(P[73], p[0], P[98]);
-    const double t317 = DERIVE_FMA(P[74], p[0], P[121]);
-    const double t318 = DERIVE_FMA(P[75], p[0], P[144]);
-    const double t319 = DERIVE_FMA(P[76], p[0], P[145]);
-    const double t320 = DERIVE_FMA(P[77], p[0], P[146]);
-    const double t321 = DERIVE_FMA(P[78], p[0], P[147]);
-    const double t322 = DERIVE_FMA(P[79], p[0], P[148]);
-    const double t323 = DERIVE_FMA(P[80], p[0], P[149]);
-    const double t324 = DERIVE_FMA(P[81], p[0], P[150]);
-    const double t325 = DERIVE_FMA(P[82], p[0], P[151]);
-    const double t326 = DERIVE_FMA(P[83], p[0], P[152]);
-    const double t327 = DERIVE_FMA(P[84], p[0], P[153]);
-    const double t328 = DERIVE_FMA(P[85], p[0], P[154]);
-    const double t329 = DERIVE_FMA(P[86], p[0], P[155]);
-    const double t330 = DERIVE_FMA(P[87], p[0], P[156]);
-    const double t331 = DERIVE_FMA(P[88], p[0], P[157]);
-    const double t332 = DERIVE_FMA(P[89], p[0], P[158]);
-    const double t333 = DERIVE_FMA(P[90], p[0], P[159]);
-    const double t334 = DERIVE_FMA(P[91], p[0], P[160]);
-    const double t335 = DERIVE_FMA(P[96], p[0], P[99]);
-    const double t337 = DERIVE_FMA(P[97], p[0], P[122]);
-    const double t338 = DERIVE_FMA(P[99], p[0], P[168]);
-    const double t339 = DERIVE_FMA(P[100], p[0], P[169]);
-    const double t340 = DERIVE_FMA(P[101], p[0], P[170]);
-    const double t341 = DERIVE_FMA(P[102], p[0], P[171]);
-    const double t342 = DERIVE_FMA(P[103], p[0], P[172]);
-    const double t343 = DERIVE_FMA(P[104], p[0], P[173]);
-    const double t344 = DERIVE_FMA(P[105], p[0], P[174]);
-    const double t345 = DERIVE_FMA(P[106], p[0], P[175]);
-    const double t346 = DERIVE_FMA(P[107], p[0], P[176]);
-    const double t347 = DERIVE_FMA(P[108], p[0], P[177]);
-    const double t348 = DERIVE_FMA(P[109], p[0], P[178]);
-    const double t349 = DERIVE_FMA(P[110], p[0], P[179]);
-    const double t350 = DERIVE_FMA(P[111], p[0], P[180]);
-    const double t351 = DERIVE_FMA(P[112], p[0], P[181]);
-    const double t352 = DERIVE_FMA(P[113], p[0], P[182]);
-    const double t353 = DERIVE_FMA(P[114], p[0], P[183]);
-    const double t354 = DERIVE_FMA(P[120], p[0], P[123]);
-    const double t355 = DERIVE_FMA(P[123], p[0], P[192]);
-    const double t356 = DERIVE_FMA(P[124], p[0], P[193]);
-    const double t357 = DERIVE_FMA(P[125], p[0], P[194]);
-    const double t358 = DERIVE_FMA(P[126], p[0], P[195]);
-    const double t359 = DERIVE_FMA(P[127], p[0], P[196]);
-    const double t360 = DERIVE_FMA(P[128], p[0], P[197]);
-    const double t361 = DERIVE_FMA(P[129], p[0], P[198]);
-    const double t362 = DERIVE_FMA(P[130], p[0], P[199]);
-    const double t363 = DERIVE_FMA(P[131], p[0], P[200]);
-    const double t364 = DERIVE_FMA(P[132], p[0], P[201]);
-    const double t365 = DERIVE_FMA(P[133], p[0], P[202]);
-    const double t366 = DERIVE_FMA(P[134], p[0], P[203]);
-    const double t367 = DERIVE_FMA(P[135], p[0], P[204]);
-    const double t368 = DERIVE_FMA(P[136], p[0], P[205]);
-    const double t369 = DERIVE_FMA(P[137], p[0], P[206]);
-    const double t370 = DERIVE_FMA(t180, t71, DERIVE_FNMA(t107, t184, DERIVE_FMA(t106, t182, DERIVE_FMA(t105, t171, DERIVE_FMA(t104, t170, t103*t169)))));
-    const double t371 = DERIVE_FMA(t182, t71, DERIVE_FMA(t114, t184, DERIVE_FMA(t113, t171, DERIVE_FMA(t112, t170, DERIVE_FNMA(t106, t180, t110*t169)))));
-    const double t372 = DERIVE_FMA(t184, t71, DERIVE_FMA(t118, t171, DERIVE_FMA(t117, t170, DERIVE_FMA(t116, t169, DERIVE_FNMA(t114, t182, t107*t180)))));
-    const double t373 = DERIVE_FNMA(t124, t187, DERIVE_FNMA(t123, t186, DERIVE_FNMA(t122, t185, DERIVE_FMA(t121, t171, DERIVE_FMA(t120, t170, DERIVE_FMA(t119, t169, t172))))));
-    const double t374 = DERIVE_FNMA(t130, t187, DERIVE_FNMA(t129, t186, DERIVE_FNMA(t128, t185, DERIVE_FMA(t127, t171, DERIVE_FMA(t126, t170, DERIVE_FMA(t125, t169, t173))))));
-    const double t375 = DERIVE_FNMA(t136, t187, DERIVE_FNMA(t135, t186, DERIVE_FNMA(t134, t185, DERIVE_FMA(t133, t171, DERIVE_FMA(t132, t170, DERIVE_FMA(t131, t169, t174))))));
-    const double t376 = DERIVE_FMA(p[0], t172, t175);
-    const double t377 = DERIVE_FMA(p[0], t173, t176);
-    const double t378 = DERIVE_FMA(p[0], t174, t177);
-    const double t379 = DERIVE_FMA(t207, t71, DERIVE_FMA(t114, t209, DERIVE_FMA(t113, t198, DERIVE_FMA(t112, t197, DERIVE_FNMA(t106, t205, t110*t196)))));
-    const double t380 = DERIVE_FMA(t209, t71, DERIVE_FMA(t118, t198, DERIVE_FMA(t117, t197, DERIVE_FMA(t116, t196, DERIVE_FNMA(t114, t207, t107*t205)))));
-    const double t381 = DERIVE_FNMA(t124, t212, DERIVE_FNMA(t123, t211, DERIVE_FNMA(t122, t210, DERIVE_FMA(t121, t198, DERIVE_FMA(t120, t197, DERIVE_FMA(t119, t196, t199))))));
-    const double t382 = DERIVE_FNMA(t130, t212, DERIVE_FNMA(t129, t211, DERIVE_FNMA(t128, t210, DERIVE_FMA(t127, t198, DERIVE_FMA(t126, t197, DERIVE_FMA(t125, t196, t200))))));
-    const double t383 = DERIVE_FNMA(t136, t212, DERIVE_FNMA(t135, t211, DERIVE_FNMA(t134, t210, DERIVE_FMA(t133, t198, DERIVE_FMA(t132, t197, DERIVE_FMA(t131, t196, t201))))));
-    const double t384 = DERIVE_FMA(p[0], t199, t202);
-    const double t385 = DERIVE_FMA(p[0], t200, t203);
-    const double t386 = DERIVE_FMA(p[0], t201, t204);
-    const double t387 = DERIVE_FMA(t232, t71, DERIVE_FMA(t118, t223, DERIVE_FMA(t117, t222, DERIVE_FMA(t116, t221, DERIVE_FNMA(t114, t231, t107*t230)))));
-    const double t388 = DERIVE_FNMA(t124, t235, DERIVE_FNMA(t123, t234, DERIVE_FNMA(t122, t233, DERIVE_FMA(t121, t223, DERIVE_FMA(t120, t222, DERIVE_FMA(t119, t221, t224))))));
-    const double t389 = DERIVE_FNMA(t130, t235, DERIVE_FNMA(t129, t234, DERIVE_FNMA(t128, t233, DERIVE_FMA(t127, t223, DERIVE_FMA(t126, t222, DERIVE_FMA(t125, t221, t225))))));
-    const double t390 = DERIVE_FNMA(t136, t235, DERIVE_FNMA(t135, t234, DERIVE_FNMA(t134, t233, DERIVE_FMA(t133, t223, DERIVE_FMA(t132, t222, DERIVE_FMA(t131, t221, t226))))));
-    const double t391 = DERIVE_FMA(p[0], t224, t227);
-    const double t392 = DERIVE_FMA(p[0], t225, t228);
-    const double t393 = DERIVE_FMA(p[0], t226, t229);
-    const double t394 = DERIVE_FNMA(t124, t258, DERIVE_FNMA(t123, t257, DERIVE_FNMA(t122, t256, DERIVE_FMA(t121, t246, DERIVE_FMA(t120, t245, DERIVE_FMA(t119, t244, t247))))));
-    const double t395 = DERIVE_FNMA(t130, t258, DERIVE_FNMA(t129, t257, DERIVE_FNMA(t128, t256, DERIVE_FMA(t127, t246, DERIVE_FMA(t126, t245, DERIVE_FMA(t125, t244, t248))))));
-    const double t396 = DERIVE_FNMA(t136, t258, DERIVE_FNMA(t135, t257, DERIVE_FNMA(t134, t256, DERIVE_FMA(t133, t246, DERIVE_FMA(t132, t245, DERIVE_FMA(t131, t244, t249))))));
-    const double t397 = DERIVE_FMA(p[0], t247, t250);
-    const double t398 = DERIVE_FMA(p[0], t248, t251);
-    const double t399 = DERIVE_FMA(p[0], t249, t252);
-    const double t400 = DERIVE_FNMA(t130, t281, DERIVE_FNMA(t129, t280, DERIVE_FNMA(t128, t279, DERIVE_FMA(t127, t269, DERIVE_FMA(t126, t268, DERIVE_FMA(t125, t267, t271))))));
-    const double t401 = DERIVE_FNMA(t136, t281, DERIVE_FNMA(t135, t280, DERIVE_FNMA(t134, t279, DERIVE_FMA(t133, t269, DERIVE_FMA(t132, t268, DERIVE_FMA(t131, t267, t272))))));
-    const double t402 = DERIVE_FMA(p[0], t270, t273);
-    const double t403 = DERIVE_FMA(p[0], t271, t274);
-    const double t404 = DERIVE_FMA(p[0], t272, t275);
-    const double t405 = DERIVE_FNMA(t136, t304, DERIVE_FNMA(t135, t303, DERIVE_FNMA(t134, t302, DERIVE_FMA(t133, t292, DERIVE_FMA(t132, t291, DERIVE_FMA(t131, t290, t295))))));
-    const double t406 = DERIVE_FMA(p[0], t293, t296);
-    const double t407 = DERIVE_FMA(p[0], t294, t297);
-    const double t408 = DERIVE_FMA(p[0], t295, t298);
-    const double t409 = DERIVE_FMA(p[0], t313, t318);
-    const double t410 = DERIVE_FMA(p[0], t315, t319);
-    const double t411 = DERIVE_FMA(p[0], t317, t320);
-    const double t412 = DERIVE_FMA(p[0], t335, t338);
-    const double t413 = DERIVE_FMA(p[0], t337, t339);
-    const double t414 = DERIVE_FMA(p[0], t354, t355);
-    const double t415 = t153 + t370;
-    const double t416 = t154 + t371;
-    const double t417 = t155 + t372;
-    const double t418 = t157 + t379;
-    const double t419 = t158 + t380;
-    const double t420 = t159 + t387;
-    const double t421 = t160 + t394;
-    const double t422 = t161 + t395;
-    const double t423 = t162 + t396;
-    const double t424 = t163 + t400;
-    const double t425 = t164 + t401;
-    const double t426 = t165 + t405;
-    const double t427 = P[216] + t166;
-    const double t428 = P[240] + t166;
-    const double t429 = P[264] + t166;
-    const double t430 = P[288] + t167;
-    const double t431 = P[312] + t167;
-    const double t432 = P[336] + t167;
-    const double t433 = P[360] + t167;
-    const double t434 = P[384] + t167;
-    const double t435 = P[408] + t167;
-    const double t436 = P[432] + t167;
-    const double t437 = P[456] + t167;
-    const double t438 = P[480] + t167;
-    const double t439 = P[504] + t168;
-    const double t440 = P[528] + t168;
-    const double t441 = DERIVE_FMA(t96, t96, DERIVE_FMA(t95, t95, DERIVE_FMA(t94, t94, t93*t93)));
-    const double t442 = 1.0/sqrt(t441);
-    const double t443 = t442*t93;
-    const double t444 = t442*t94;
-    const double t445 = t442*t95;
-    const double t446 = t442*t96;
-    x_new[0] = t443;
-    x_new[1] = t444;
-    x_new[2] = t445;
-    x_new[3] = t446;
+    const double t169 = DERIVE_FMA(t96, t96, DERIVE_FMA(t95, t95, DERIVE_FMA(t94, t94, t93*t93)));
+    const double t170 = 1.0/sqrt(t169);
+    const double t171 = t170*t93;
+    const double t172 = t170*t94;
+    const double t173 = t170*t95;
+    const double t174 = t170*t96;
+    const double t175 = -t107;
+    const double t176 = -t106;
+    const double t177 = -t114;
+    const double t178 = -t122;
+    const double t179 = -t123;
+    const double t180 = -t124;
+    const double t181 = -t128;
+    const double t182 = -t129;
+    const double t183 = -t130;
+    const double t184 = -t134;
+    const double t185 = -t135;
+    const double t186 = -t136;
+    #if DERIVE_VECTOR
+    const derive_vd v_t187_0 = (((derive_vd){t103, t103, t103, t103}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t187_1 = DERIVE_VFMA(((derive_vd){t104, t104, t104, t104}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t187_0);
+    const derive_vd v_t187_2 = DERIVE_VFMA(((derive_vd){t105, t105, t105, t105}), ((derive_vd){P[46], P[47], P[48], P[49]}), v_t187_1);
+    const derive_vd v_t187_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[207], P[208], P[209], P[210]}), v_t187_2);
+    const derive_vd v_t187_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[230], P[231], P[232], P[233]}), v_t187_3);
+    const derive_vd v_t187 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[253], P[254], P[255], P[256]}), v_t187_4);
+    const double t187 = v_t187[0];
+    const double t188 = v_t187[1];
+    const double t189 = v_t187[2];
+    #else
+    const double t187 = DERIVE_FMA(t175, P[253], DERIVE_FMA(t106, P[230], DERIVE_FMA(t71, P[207], DERIVE_FMA(t105, P[46], DERIVE_FMA(t104, P[23], t103*P[0])))));
+    const double t188 = DERIVE_FMA(t175, P[254], DERIVE_FMA(t106, P[231], DERIVE_FMA(t71, P[208], DERIVE_FMA(t105, P[47], DERIVE_FMA(t104, P[24], t103*P[1])))));
+    const double t189 = DERIVE_FMA(t175, P[255], DERIVE_FMA(t106, P[232], DERIVE_FMA(t71, P[209], DERIVE_FMA(t105, P[48], DERIVE_FMA(t104, P[25], t103*P[2])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t191_0 = (((derive_vd){t103, t103, t103, t103}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t191_1 = DERIVE_VFMA(((derive_vd){t104, t104, t104, t104}), ((derive_vd){P[31], P[32], P[33], P[34]}), v_t191_0);
+    const derive_vd v_t191_2 = DERIVE_VFMA(((derive_vd){t105, t105, t105, t105}), ((derive_vd){P[54], P[55], P[56], P[57]}), v_t191_1);
+    const derive_vd v_t191_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[215], P[216], P[217], P[218]}), v_t191_2);
+    const derive_vd v_t191_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[238], P[239], P[240], P[241]}), v_t191_3);
+    const derive_vd v_t191 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[261], P[262], P[263], P[264]}), v_t191_4);
+    const double t192 = v_t191[1];
+    const double t193 = v_t191[2];
+    const double t194 = v_t191[3];
+    #else
+    const double t192 = DERIVE_FMA(t175, P[262], DERIVE_FMA(t106, P[239], DERIVE_FMA(t71, P[216], DERIVE_FMA(t105, P[55], DERIVE_FMA(t104, P[32], t103*P[9])))));
+    const double t193 = DERIVE_FMA(t175, P[263], DERIVE_FMA(t106, P[240], DERIVE_FMA(t71, P[217], DERIVE_FMA(t105, P[56], DERIVE_FMA(t104, P[33], t103*P[10])))));
+    const double t194 = DERIVE_FMA(t175, P[264], DERIVE_FMA(t106, P[241], DERIVE_FMA(t71, P[218], DERIVE_FMA(t105, P[57], DERIVE_FMA(t104, P[34], t103*P[11])))));
+    P_new[9] = t192;
+    P_new[207] = t192;
+    P_new[10] = t193;
+    P_new[230] = t193;
+    P_new[11] = t194;
+    P_new[253] = t194;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t195_0 = (((derive_vd){t103, t103, t103, t103}) * ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t195_1 = DERIVE_VFMA(((derive_vd){t104, t104, t104, t104}), ((derive_vd){P[35], P[36], P[37], P[38]}), v_t195_0);
+    const derive_vd v_t195_2 = DERIVE_VFMA(((derive_vd){t105, t105, t105, t105}), ((derive_vd){P[58], P[59], P[60], P[61]}), v_t195_1);
+    const derive_vd v_t195_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[219], P[220], P[221], P[222]}), v_t195_2);
+    const derive_vd v_t195_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[242], P[243], P[244], P[245]}), v_t195_3);
+    const derive_vd v_t195 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[265], P[266], P[267], P[268]}), v_t195_4);
+    const double t195 = v_t195[0];
+    const double t196 = v_t195[1];
+    const double t197 = v_t195[2];
+    const double t198 = v_t195[3];
+    *(derive_vd_unaligned *)&P_new[12] = v_t195;
+    #else
+    const double t195 = DERIVE_FMA(t175, P[265], DERIVE_FMA(t106, P[242], DERIVE_FMA(t71, P[219], DERIVE_FMA(t105, P[58], DERIVE_FMA(t104, P[35], t103*P[12])))));
+    const double t196 = DERIVE_FMA(t175, P[266], DERIVE_FMA(t106, P[243], DERIVE_FMA(t71, P[220], DERIVE_FMA(t105, P[59], DERIVE_FMA(t104, P[36], t103*P[13])))));
+    const double t197 = DERIVE_FMA(t175, P[267], DERIVE_FMA(t106, P[244], DERIVE_FMA(t71, P[221], DERIVE_FMA(t105, P[60], DERIVE_FMA(t104, P[37], t103*P[14])))));
+    const double t198 = DERIVE_FMA(t175, P[268], DERIVE_FMA(t106, P[245], DERIVE_FMA(t71, P[222], DERIVE_FMA(t105, P[61], DERIVE_FMA(t104, P[38], t103*P[15])))));
+    P_new[12] = t195;
+    P_new[276] = t195;
+    P_new[13] = t196;
+    P_new[299] = t196;
+    P_new[14] = t197;
+    P_new[322] = t197;
+    P_new[15] = t198;
+    P_new[345] = t198;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t199_0 = (((derive_vd){t103, t103, t103, t103}) * ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t199_1 = DERIVE_VFMA(((derive_vd){t104, t104, t104, t104}), ((derive_vd){P[39], P[40], P[41], P[42]}), v_t199_0);
+    const derive_vd v_t199_2 = DERIVE_VFMA(((derive_vd){t105, t105, t105, t105}), ((derive_vd){P[62], P[63], P[64], P[65]}), v_t199_1);
+    const derive_vd v_t199_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[223], P[224], P[225], P[226]}), v_t199_2);
+    const derive_vd v_t199_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[246], P[247], P[248], P[249]}), v_t199_3);
+    const derive_vd v_t199 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[269], P[270], P[271], P[272]}), v_t199_4);
+    const double t199 = v_t199[0];
+    const double t200 = v_t199[1];
+    const double t201 = v_t199[2];
+    const double t202 = v_t199[3];
+    *(derive_vd_unaligned *)&P_new[16] = v_t199;
+    #else
+    const double t199 = DERIVE_FMA(t175, P[269], DERIVE_FMA(t106, P[246], DERIVE_FMA(t71, P[223], DERIVE_FMA(t105, P[62], DERIVE_FMA(t104, P[39], t103*P[16])))));
+    const double t200 = DERIVE_FMA(t175, P[270], DERIVE_FMA(t106, P[247], DERIVE_FMA(t71, P[224], DERIVE_FMA(t105, P[63], DERIVE_FMA(t104, P[40], t103*P[17])))));
+    const double t201 = DERIVE_FMA(t175, P[271], DERIVE_FMA(t106, P[248], DERIVE_FMA(t71, P[225], DERIVE_FMA(t105, P[64], DERIVE_FMA(t104, P[41], t103*P[18])))));
+    const double t202 = DERIVE_FMA(t175, P[272], DERIVE_FMA(t106, P[249], DERIVE_FMA(t71, P[226], DERIVE_FMA(t105, P[65], DERIVE_FMA(t104, P[42], t103*P[19])))));
+    P_new[16] = t199;
+    P_new[368] = t199;
+    P_new[17] = t200;
+    P_new[391] = t200;
+    P_new[18] = t201;
+    P_new[414] = t201;
+    P_new[19] = t202;
+    P_new[437] = t202;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t203_0 = (((derive_vd){t103, t103, t103, t103}) * ((derive_vd){P[19], P[20], P[21], P[22]}));
+    const derive_vd v_t203_1 = DERIVE_VFMA(((derive_vd){t104, t104, t104, t104}), ((derive_vd){P[42], P[43], P[44], P[45]}), v_t203_0);
+    const derive_vd v_t203_2 = DERIVE_VFMA(((derive_vd){t105, t105, t105, t105}), ((derive_vd){P[65], P[66], P[67], P[68]}), v_t203_1);
+    const derive_vd v_t203_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[226], P[227], P[228], P[229]}), v_t203_2);
+    const derive_vd v_t203_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[249], P[250], P[251], P[252]}), v_t203_3);
+    const derive_vd v_t203 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t203_4);
+    const double t204 = v_t203[1];
+    const double t205 = v_t203[2];
+    const double t206 = v_t203[3];
+    #else
+    const double t204 = DERIVE_FMA(t175, P[273], DERIVE_FMA(t106, P[250], DERIVE_FMA(t71, P[227], DERIVE_FMA(t105, P[66], DERIVE_FMA(t104, P[43], t103*P[20])))));
+    const double t205 = DERIVE_FMA(t175, P[274], DERIVE_FMA(t106, P[251], DERIVE_FMA(t71, P[228], DERIVE_FMA(t105, P[67], DERIVE_FMA(t104, P[44], t103*P[21])))));
+    const double t206 = DERIVE_FMA(t175, P[275], DERIVE_FMA(t106, P[252], DERIVE_FMA(t71, P[229], DERIVE_FMA(t105, P[68], DERIVE_FMA(t104, P[45], t103*P[22])))));
+    P_new[20] = t204;
+    P_new[460] = t204;
+    P_new[21] = t205;
+    P_new[483] = t205;
+    P_new[22] = t206;
+    P_new[506] = t206;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t207_0 = (((derive_vd){t110, t110, t110, t110}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t207_1 = DERIVE_VFMA(((derive_vd){t112, t112, t112, t112}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t207_0);
+    const derive_vd v_t207_2 = DERIVE_VFMA(((derive_vd){t113, t113, t113, t113}), ((derive_vd){P[46], P[47], P[48], P[49]}), v_t207_1);
+    const derive_vd v_t207_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){P[207], P[208], P[209], P[210]}), v_t207_2);
+    const derive_vd v_t207_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[230], P[231], P[232], P[233]}), v_t207_3);
+    const derive_vd v_t207 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){P[253], P[254], P[255], P[256]}), v_t207_4);
+    const double t207 = v_t207[0];
+    const double t208 = v_t207[1];
+    const double t209 = v_t207[2];
+    #else
+    const double t207 = DERIVE_FMA(t114, P[253], DERIVE_FMA(t71, P[230], DERIVE_FMA(t176, P[207], DERIVE_FMA(t113, P[46], DERIVE_FMA(t112, P[23], t110*P[0])))));
+    const double t208 = DERIVE_FMA(t114, P[254], DERIVE_FMA(t71, P[231], DERIVE_FMA(t176, P[208], DERIVE_FMA(t113, P[47], DERIVE_FMA(t112, P[24], t110*P[1])))));
+    const double t209 = DERIVE_FMA(t114, P[255], DERIVE_FMA(t71, P[232], DERIVE_FMA(t176, P[209], DERIVE_FMA(t113, P[48], DERIVE_FMA(t112, P[25], t110*P[2])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t211_0 = (((derive_vd){t110, t110, t110, t110}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t211_1 = DERIVE_VFMA(((derive_vd){t112, t112, t112, t112}), ((derive_vd){P[31], P[32], P[33], P[34]}), v_t211_0);
+    const derive_vd v_t211_2 = DERIVE_VFMA(((derive_vd){t113, t113, t113, t113}), ((derive_vd){P[54], P[55], P[56], P[57]}), v_t211_1);
+    const derive_vd v_t211_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){P[215], P[216], P[217], P[218]}), v_t211_2);
+    const derive_vd v_t211_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[238], P[239], P[240], P[241]}), v_t211_3);
+    const derive_vd v_t211 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){P[261], P[262], P[263], P[264]}), v_t211_4);
+    const double t212 = v_t211[1];
+    const double t213 = v_t211[2];
+    const double t214 = v_t211[3];
+    #else
+    const double t212 = DERIVE_FMA(t114, P[262], DERIVE_FMA(t71, P[239], DERIVE_FMA(t176, P[216], DERIVE_FMA(t113, P[55], DERIVE_FMA(t112, P[32], t110*P[9])))));
+    const double t213 = DERIVE_FMA(t114, P[263], DERIVE_FMA(t71, P[240], DERIVE_FMA(t176, P[217], DERIVE_FMA(t113, P[56], DERIVE_FMA(t112, P[33], t110*P[10])))));
+    const double t214 = DERIVE_FMA(t114, P[264], DERIVE_FMA(t71, P[241], DERIVE_FMA(t176, P[218], DERIVE_FMA(t113, P[57], DERIVE_FMA(t112, P[34], t110*P[11])))));
+    P_new[32] = t212;
+    P_new[208] = t212;
+    P_new[33] = t213;
+    P_new[231] = t213;
+    P_new[34] = t214;
+    P_new[254] = t214;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t215_0 = (((derive_vd){t110, t110, t110, t110}) * ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t215_1 = DERIVE_VFMA(((derive_vd){t112, t112, t112, t112}), ((derive_vd){P[35], P[36], P[37], P[38]}), v_t215_0);
+    const derive_vd v_t215_2 = DERIVE_VFMA(((derive_vd){t113, t113, t113, t113}), ((derive_vd){P[58], P[59], P[60], P[61]}), v_t215_1);
+    const derive_vd v_t215_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){P[219], P[220], P[221], P[222]}), v_t215_2);
+    const derive_vd v_t215_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[242], P[243], P[244], P[245]}), v_t215_3);
+    const derive_vd v_t215 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){P[265], P[266], P[267], P[268]}), v_t215_4);
+    const double t215 = v_t215[0];
+    const double t216 = v_t215[1];
+    const double t217 = v_t215[2];
+    const double t218 = v_t215[3];
+    *(derive_vd_unaligned *)&P_new[32] = ((derive_vd){t212, t213, t214, t215});
+    #else
+    const double t215 = DERIVE_FMA(t114, P[265], DERIVE_FMA(t71, P[242], DERIVE_FMA(t176, P[219], DERIVE_FMA(t113, P[58], DERIVE_FMA(t112, P[35], t110*P[12])))));
+    const double t216 = DERIVE_FMA(t114, P[266], DERIVE_FMA(t71, P[243], DERIVE_FMA(t176, P[220], DERIVE_FMA(t113, P[59], DERIVE_FMA(t112, P[36], t110*P[13])))));
+    const double t217 = DERIVE_FMA(t114, P[267], DERIVE_FMA(t71, P[244], DERIVE_FMA(t176, P[221], DERIVE_FMA(t113, P[60], DERIVE_FMA(t112, P[37], t110*P[14])))));
+    const double t218 = DERIVE_FMA(t114, P[268], DERIVE_FMA(t71, P[245], DERIVE_FMA(t176, P[222], DERIVE_FMA(t113, P[61], DERIVE_FMA(t112, P[38], t110*P[15])))));
+    P_new[35] = t215;
+    P_new[277] = t215;
+    P_new[36] = t216;
+    P_new[300] = t216;
+    P_new[37] = t217;
+    P_new[323] = t217;
+    P_new[38] = t218;
+    P_new[346] = t218;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t219_0 = (((derive_vd){t110, t110, t110, t110}) * ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t219_1 = DERIVE_VFMA(((derive_vd){t112, t112, t112, t112}), ((derive_vd){P[39], P[40], P[41], P[42]}), v_t219_0);
+    const derive_vd v_t219_2 = DERIVE_VFMA(((derive_vd){t113, t113, t113, t113}), ((derive_vd){P[62], P[63], P[64], P[65]}), v_t219_1);
+    const derive_vd v_t219_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){P[223], P[224], P[225], P[226]}), v_t219_2);
+    const derive_vd v_t219_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[246], P[247], P[248], P[249]}), v_t219_3);
+    const derive_vd v_t219 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){P[269], P[270], P[271], P[272]}), v_t219_4);
+    const double t219 = v_t219[0];
+    const double t220 = v_t219[1];
+    const double t221 = v_t219[2];
+    const double t222 = v_t219[3];
+    *(derive_vd_unaligned *)&P_new[36] = ((derive_vd){t216, t217, t218, t219});
+    #else
+    const double t219 = DERIVE_FMA(t114, P[269], DERIVE_FMA(t71, P[246], DERIVE_FMA(t176, P[223], DERIVE_FMA(t113, P[62], DERIVE_FMA(t112, P[39], t110*P[16])))));
+    const double t220 = DERIVE_FMA(t114, P[270], DERIVE_FMA(t71, P[247], DERIVE_FMA(t176, P[224], DERIVE_FMA(t113, P[63], DERIVE_FMA(t112, P[40], t110*P[17])))));
+    const double t221 = DERIVE_FMA(t114, P[271], DERIVE_FMA(t71, P[248], DERIVE_FMA(t176, P[225], DERIVE_FMA(t113, P[64], DERIVE_FMA(t112, P[41], t110*P[18])))));
+    const double t222 = DERIVE_FMA(t114, P[272], DERIVE_FMA(t71, P[249], DERIVE_FMA(t176, P[226], DERIVE_FMA(t113, P[65], DERIVE_FMA(t112, P[42], t110*P[19])))));
+    P_new[39] = t219;
+    P_new[369] = t219;
+    P_new[40] = t220;
+    P_new[392] = t220;
+    P_new[41] = t221;
+    P_new[415] = t221;
+    P_new[42] = t222;
+    P_new[438] = t222;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t223_0 = (((derive_vd){t110, t110, t110, t110}) * ((derive_vd){P[19], P[20], P[21], P[22]}));
+    const derive_vd v_t223_1 = DERIVE_VFMA(((derive_vd){t112, t112, t112, t112}), ((derive_vd){P[42], P[43], P[44], P[45]}), v_t223_0);
+    const derive_vd v_t223_2 = DERIVE_VFMA(((derive_vd){t113, t113, t113, t113}), ((derive_vd){P[65], P[66], P[67], P[68]}), v_t223_1);
+    const derive_vd v_t223_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){P[226], P[227], P[228], P[229]}), v_t223_2);
+    const derive_vd v_t223_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[249], P[250], P[251], P[252]}), v_t223_3);
+    const derive_vd v_t223 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t223_4);
+    const double t224 = v_t223[1];
+    const double t225 = v_t223[2];
+    const double t226 = v_t223[3];
+    *(derive_vd_unaligned *)&P_new[40] = ((derive_vd){t220, t221, t222, t224});
+    #else
+    const double t224 = DERIVE_FMA(t114, P[273], DERIVE_FMA(t71, P[250], DERIVE_FMA(t176, P[227], DERIVE_FMA(t113, P[66], DERIVE_FMA(t112, P[43], t110*P[20])))));
+    const double t225 = DERIVE_FMA(t114, P[274], DERIVE_FMA(t71, P[251], DERIVE_FMA(t176, P[228], DERIVE_FMA(t113, P[67], DERIVE_FMA(t112, P[44], t110*P[21])))));
+    const double t226 = DERIVE_FMA(t114, P[275], DERIVE_FMA(t71, P[252], DERIVE_FMA(t176, P[229], DERIVE_FMA(t113, P[68], DERIVE_FMA(t112, P[45], t110*P[22])))));
+    P_new[43] = t224;
+    P_new[461] = t224;
+    P_new[44] = t225;
+    P_new[484] = t225;
+    P_new[45] = t226;
+    P_new[507] = t226;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t227_0 = (((derive_vd){t116, t116, t116, t116}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t227_1 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t227_0);
+    const derive_vd v_t227_2 = DERIVE_VFMA(((derive_vd){t118, t118, t118, t118}), ((derive_vd){P[46], P[47], P[48], P[49]}), v_t227_1);
+    const derive_vd v_t227_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){P[207], P[208], P[209], P[210]}), v_t227_2);
+    const derive_vd v_t227_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){P[230], P[231], P[232], P[233]}), v_t227_3);
+    const derive_vd v_t227 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[253], P[254], P[255], P[256]}), v_t227_4);
+    const double t227 = v_t227[0];
+    const double t228 = v_t227[1];
+    const double t229 = v_t227[2];
+    #else
+    const double t227 = DERIVE_FMA(t71, P[253], DERIVE_FMA(t177, P[230], DERIVE_FMA(t107, P[207], DERIVE_FMA(t118, P[46], DERIVE_FMA(t117, P[23], t116*P[0])))));
+    const double t228 = DERIVE_FMA(t71, P[254], DERIVE_FMA(t177, P[231], DERIVE_FMA(t107, P[208], DERIVE_FMA(t118, P[47], DERIVE_FMA(t117, P[24], t116*P[1])))));
+    const double t229 = DERIVE_FMA(t71, P[255], DERIVE_FMA(t177, P[232], DERIVE_FMA(t107, P[209], DERIVE_FMA(t118, P[48], DERIVE_FMA(t117, P[25], t116*P[2])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t231_0 = (((derive_vd){t116, t116, t116, t116}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t231_1 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){P[31], P[32], P[33], P[34]}), v_t231_0);
+    const derive_vd v_t231_2 = DERIVE_VFMA(((derive_vd){t118, t118, t118, t118}), ((derive_vd){P[54], P[55], P[56], P[57]}), v_t231_1);
+    const derive_vd v_t231_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){P[215], P[216], P[217], P[218]}), v_t231_2);
+    const derive_vd v_t231_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){P[238], P[239], P[240], P[241]}), v_t231_3);
+    const derive_vd v_t231 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[261], P[262], P[263], P[264]}), v_t231_4);
+    const double t232 = v_t231[1];
+    const double t233 = v_t231[2];
+    const double t234 = v_t231[3];
+    #else
+    const double t232 = DERIVE_FMA(t71, P[262], DERIVE_FMA(t177, P[239], DERIVE_FMA(t107, P[216], DERIVE_FMA(t118, P[55], DERIVE_FMA(t117, P[32], t116*P[9])))));
+    const double t233 = DERIVE_FMA(t71, P[263], DERIVE_FMA(t177, P[240], DERIVE_FMA(t107, P[217], DERIVE_FMA(t118, P[56], DERIVE_FMA(t117, P[33], t116*P[10])))));
+    const double t234 = DERIVE_FMA(t71, P[264], DERIVE_FMA(t177, P[241], DERIVE_FMA(t107, P[218], DERIVE_FMA(t118, P[57], DERIVE_FMA(t117, P[34], t116*P[11])))));
+    P_new[55] = t232;
+    P_new[209] = t232;
+    P_new[56] = t233;
+    P_new[232] = t233;
+    P_new[57] = t234;
+    P_new[255] = t234;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t235_0 = (((derive_vd){t116, t116, t116, t116}) * ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t235_1 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){P[35], P[36], P[37], P[38]}), v_t235_0);
+    const derive_vd v_t235_2 = DERIVE_VFMA(((derive_vd){t118, t118, t118, t118}), ((derive_vd){P[58], P[59], P[60], P[61]}), v_t235_1);
+    const derive_vd v_t235_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){P[219], P[220], P[221], P[222]}), v_t235_2);
+    const derive_vd v_t235_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){P[242], P[243], P[244], P[245]}), v_t235_3);
+    const derive_vd v_t235 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[265], P[266], P[267], P[268]}), v_t235_4);
+    const double t235 = v_t235[0];
+    const double t236 = v_t235[1];
+    const double t237 = v_t235[2];
+    const double t238 = v_t235[3];
+    *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t233, t234, t235, t236});
+    #else
+    const double t235 = DERIVE_FMA(t71, P[265], DERIVE_FMA(t177, P[242], DERIVE_FMA(t107, P[219], DERIVE_FMA(t118, P[58], DERIVE_FMA(t117, P[35], t116*P[12])))));
+    const double t236 = DERIVE_FMA(t71, P[266], DERIVE_FMA(t177, P[243], DERIVE_FMA(t107, P[220], DERIVE_FMA(t118, P[59], DERIVE_FMA(t117, P[36], t116*P[13])))));
+    const double t237 = DERIVE_FMA(t71, P[267], DERIVE_FMA(t177, P[244], DERIVE_FMA(t107, P[221], DERIVE_FMA(t118, P[60], DERIVE_FMA(t117, P[37], t116*P[14])))));
+    const double t238 = DERIVE_FMA(t71, P[268], DERIVE_FMA(t177, P[245], DERIVE_FMA(t107, P[222], DERIVE_FMA(t118, P[61], DERIVE_FMA(t117, P[38], t116*P[15])))));
+    P_new[58] = t235;
+    P_new[278] = t235;
+    P_new[59] = t236;
+    P_new[301] = t236;
+    P_new[60] = t237;
+    P_new[324] = t237;
+    P_new[61] = t238;
+    P_new[347] = t238;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t239_0 = (((derive_vd){t116, t116, t116, t116}) * ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t239_1 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){P[39], P[40], P[41], P[42]}), v_t239_0);
+    const derive_vd v_t239_2 = DERIVE_VFMA(((derive_vd){t118, t118, t118, t118}), ((derive_vd){P[62], P[63], P[64], P[65]}), v_t239_1);
+    const derive_vd v_t239_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){P[223], P[224], P[225], P[226]}), v_t239_2);
+    const derive_vd v_t239_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){P[246], P[247], P[248], P[249]}), v_t239_3);
+    const derive_vd v_t239 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[269], P[270], P[271], P[272]}), v_t239_4);
+    const double t239 = v_t239[0];
+    const double t240 = v_t239[1];
+    const double t241 = v_t239[2];
+    const double t242 = v_t239[3];
+    *(derive_vd_unaligned *)&P_new[60] = ((derive_vd){t237, t238, t239, t240});
+    #else
+    const double t239 = DERIVE_FMA(t71, P[269], DERIVE_FMA(t177, P[246], DERIVE_FMA(t107, P[223], DERIVE_FMA(t118, P[62], DERIVE_FMA(t117, P[39], t116*P[16])))));
+    const double t240 = DERIVE_FMA(t71, P[270], DERIVE_FMA(t177, P[247], DERIVE_FMA(t107, P[224], DERIVE_FMA(t118, P[63], DERIVE_FMA(t117, P[40], t116*P[17])))));
+    const double t241 = DERIVE_FMA(t71, P[271], DERIVE_FMA(t177, P[248], DERIVE_FMA(t107, P[225], DERIVE_FMA(t118, P[64], DERIVE_FMA(t117, P[41], t116*P[18])))));
+    const double t242 = DERIVE_FMA(t71, P[272], DERIVE_FMA(t177, P[249], DERIVE_FMA(t107, P[226], DERIVE_FMA(t118, P[65], DERIVE_FMA(t117, P[42], t116*P[19])))));
+    P_new[62] = t239;
+    P_new[370] = t239;
+    P_new[63] = t240;
+    P_new[393] = t240;
+    P_new[64] = t241;
+    P_new[416] = t241;
+    P_new[65] = t242;
+    P_new[439] = t242;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t243_0 = (((derive_vd){t116, t116, t116, t116}) * ((derive_vd){P[19], P[20], P[21], P[22]}));
+    const derive_vd v_t243_1 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){P[42], P[43], P[44], P[45]}), v_t243_0);
+    const derive_vd v_t243_2 = DERIVE_VFMA(((derive_vd){t118, t118, t118, t118}), ((derive_vd){P[65], P[66], P[67], P[68]}), v_t243_1);
+    const derive_vd v_t243_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){P[226], P[227], P[228], P[229]}), v_t243_2);
+    const derive_vd v_t243_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){P[249], P[250], P[251], P[252]}), v_t243_3);
+    const derive_vd v_t243 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t243_4);
+    const double t244 = v_t243[1];
+    const double t245 = v_t243[2];
+    const double t246 = v_t243[3];
+    *(derive_vd_unaligned *)&P_new[64] = ((derive_vd){t241, t242, t244, t245});
+    #else
+    const double t244 = DERIVE_FMA(t71, P[273], DERIVE_FMA(t177, P[250], DERIVE_FMA(t107, P[227], DERIVE_FMA(t118, P[66], DERIVE_FMA(t117, P[43], t116*P[20])))));
+    const double t245 = DERIVE_FMA(t71, P[274], DERIVE_FMA(t177, P[251], DERIVE_FMA(t107, P[228], DERIVE_FMA(t118, P[67], DERIVE_FMA(t117, P[44], t116*P[21])))));
+    const double t246 = DERIVE_FMA(t71, P[275], DERIVE_FMA(t177, P[252], DERIVE_FMA(t107, P[229], DERIVE_FMA(t118, P[68], DERIVE_FMA(t117, P[45], t116*P[22])))));
+    P_new[66] = t244;
+    P_new[462] = t244;
+    P_new[67] = t245;
+    P_new[485] = t245;
+    P_new[68] = t246;
+    P_new[508] = t246;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t247_0 = DERIVE_VFMA(((derive_vd){t119, t119, t119, t119}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[69], P[70], P[71], P[72]}));
+    const derive_vd v_t247_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t247_0);
+    const derive_vd v_t247_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){P[46], P[47], P[48], P[49]}), v_t247_1);
+    const derive_vd v_t247_3 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t247_2);
+    const derive_vd v_t247_4 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){P[299], P[300], P[301], P[302]}), v_t247_3);
+    const derive_vd v_t247 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){P[322], P[323], P[324], P[325]}), v_t247_4);
+    const double t247 = v_t247[0];
+    const double t248 = v_t247[1];
+    const double t249 = v_t247[2];
+    const double t250 = v_t247[3];
+    #else
+    const double t247 = DERIVE_FMA(t180, P[322], DERIVE_FMA(t179, P[299], DERIVE_FMA(t178, P[276], DERIVE_FMA(t121, P[46], DERIVE_FMA(t120, P[23], DERIVE_FMA(t119, P[0], P[69]))))));
+    const double t248 = DERIVE_FMA(t180, P[323], DERIVE_FMA(t179, P[300], DERIVE_FMA(t178, P[277], DERIVE_FMA(t121, P[47], DERIVE_FMA(t120, P[24], DERIVE_FMA(t119, P[1], P[70]))))));
+    const double t249 = DERIVE_FMA(t180, P[324], DERIVE_FMA(t179, P[301], DERIVE_FMA(t178, P[278], DERIVE_FMA(t121, P[48], DERIVE_FMA(t120, P[25], DERIVE_FMA(t119, P[2], P[71]))))));
+    const double t250 = DERIVE_FMA(t180, P[325], DERIVE_FMA(t179, P[302], DERIVE_FMA(t178, P[279], DERIVE_FMA(t121, P[49], DERIVE_FMA(t120, P[26], DERIVE_FMA(t119, P[3], P[72]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t251_0 = DERIVE_VFMA(((derive_vd){t119, t119, t119, t119}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[77], P[78], P[79], P[80]}));
+    const derive_vd v_t251_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){P[31], P[32], P[33], P[34]}), v_t251_0);
+    const derive_vd v_t251_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){P[54], P[55], P[56], P[57]}), v_t251_1);
+    const derive_vd v_t251_3 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t251_2);
+    const derive_vd v_t251_4 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){P[307], P[308], P[309], P[310]}), v_t251_3);
+    const derive_vd v_t251 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){P[330], P[331], P[332], P[333]}), v_t251_4);
+    const double t252 = v_t251[1];
+    const double t253 = v_t251[2];
+    const double t254 = v_t251[3];
+    #else
+    const double t252 = DERIVE_FMA(t180, P[331], DERIVE_FMA(t179, P[308], DERIVE_FMA(t178, P[285], DERIVE_FMA(t121, P[55], DERIVE_FMA(t120, P[32], DERIVE_FMA(t119, P[9], P[78]))))));
+    const double t253 = DERIVE_FMA(t180, P[332], DERIVE_FMA(t179, P[309], DERIVE_FMA(t178, P[286], DERIVE_FMA(t121, P[56], DERIVE_FMA(t120, P[33], DERIVE_FMA(t119, P[10], P[79]))))));
+    const double t254 = DERIVE_FMA(t180, P[333], DERIVE_FMA(t179, P[310], DERIVE_FMA(t178, P[287], DERIVE_FMA(t121, P[57], DERIVE_FMA(t120, P[34], DERIVE_FMA(t119, P[11], P[80]))))));
+    P_new[78] = t252;
+    P_new[210] = t252;
+    P_new[79] = t253;
+    P_new[233] = t253;
+    P_new[80] = t254;
+    P_new[256] = t254;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t255_0 = DERIVE_VFMA(((derive_vd){t119, t119, t119, t119}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[81], P[82], P[83], P[84]}));
+    const derive_vd v_t255_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){P[35], P[36], P[37], P[38]}), v_t255_0);
+    const derive_vd v_t255_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){P[58], P[59], P[60], P[61]}), v_t255_1);
+    const derive_vd v_t255_3 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t255_2);
+    const derive_vd v_t255_4 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){P[311], P[312], P[313], P[314]}), v_t255_3);
+    const derive_vd v_t255 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){P[334], P[335], P[336], P[337]}), v_t255_4);
+    const double t255 = v_t255[0];
+    const double t256 = v_t255[1];
+    const double t257 = v_t255[2];
+    const double t258 = v_t255[3];
+    *(derive_vd_unaligned *)&P_new[80] = ((derive_vd){t254, t255, t256, t257});
+    *(derive_vd_unaligned *)&P_new[276] = ((derive_vd){t195, t215, t235, t255});
+    #else
+    const double t255 = DERIVE_FMA(t180, P[334], DERIVE_FMA(t179, P[311], DERIVE_FMA(t178, P[288], DERIVE_FMA(t121, P[58], DERIVE_FMA(t120, P[35], DERIVE_FMA(t119, P[12], P[81]))))));
+    const double t256 = DERIVE_FMA(t180, P[335], DERIVE_FMA(t179, P[312], DERIVE_FMA(t178, P[289], DERIVE_FMA(t121, P[59], DERIVE_FMA(t120, P[36], DERIVE_FMA(t119, P[13], P[82]))))));
+    const double t257 = DERIVE_FMA(t180, P[336], DERIVE_FMA(t179, P[313], DERIVE_FMA(t178, P[290], DERIVE_FMA(t121, P[60], DERIVE_FMA(t120, P[37], DERIVE_FMA(t119, P[14], P[83]))))));
+    const double t258 = DERIVE_FMA(t180, P[337], DERIVE_FMA(t179, P[314], DERIVE_FMA(t178, P[291], DERIVE_FMA(t121, P[61], DERIVE_FMA(t120, P[38], DERIVE_FMA(t119, P[15], P[84]))))));
+    P_new[81] = t255;
+    P_new[279] = t255;
+    P_new[82] = t256;
+    P_new[302] = t256;
+    P_new[83] = t257;
+    P_new[325] = t257;
+    P_new[84] = t258;
+    P_new[348] = t258;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t259_0 = DERIVE_VFMA(((derive_vd){t119, t119, t119, t119}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[85], P[86], P[87], P[88]}));
+    const derive_vd v_t259_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){P[39], P[40], P[41], P[42]}), v_t259_0);
+    const derive_vd v_t259_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){P[62], P[63], P[64], P[65]}), v_t259_1);
+    const derive_vd v_t259_3 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){P[292], P[293], P[294], P[295]}), v_t259_2);
+    const derive_vd v_t259_4 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){P[315], P[316], P[317], P[318]}), v_t259_3);
+    const derive_vd v_t259 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){P[338], P[339], P[340], P[341]}), v_t259_4);
+    const double t259 = v_t259[0];
+    const double t260 = v_t259[1];
+    const double t261 = v_t259[2];
+    const double t262 = v_t259[3];
+    *(derive_vd_unaligned *)&P_new[84] = ((derive_vd){t258, t259, t260, t261});
+    *(derive_vd_unaligned *)&P_new[368] = ((derive_vd){t199, t219, t239, t259});
+    #else
+    const double t259 = DERIVE_FMA(t180, P[338], DERIVE_FMA(t179, P[315], DERIVE_FMA(t178, P[292], DERIVE_FMA(t121, P[62], DERIVE_FMA(t120, P[39], DERIVE_FMA(t119, P[16], P[85]))))));
+    const double t260 = DERIVE_FMA(t180, P[339], DERIVE_FMA(t179, P[316], DERIVE_FMA(t178, P[293], DERIVE_FMA(t121, P[63], DERIVE_FMA(t120, P[40], DERIVE_FMA(t119, P[17], P[86]))))));
+    const double t261 = DERIVE_FMA(t180, P[340], DERIVE_FMA(t179, P[317], DERIVE_FMA(t178, P[294], DERIVE_FMA(t121, P[64], DERIVE_FMA(t120, P[41], DERIVE_FMA(t119, P[18], P[87]))))));
+    const double t262 = DERIVE_FMA(t180, P[341], DERIVE_FMA(t179, P[318], DERIVE_FMA(t178, P[295], DERIVE_FMA(t121, P[65], DERIVE_FMA(t120, P[42], DERIVE_FMA(t119, P[19], P[88]))))));
+    P_new[85] = t259;
+    P_new[371] = t259;
+    P_new[86] = t260;
+    P_new[394] = t260;
+    P_new[87] = t261;
+    P_new[417] = t261;
+    P_new[88] = t262;
+    P_new[440] = t262;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t263_0 = DERIVE_VFMA(((derive_vd){t119, t119, t119, t119}), ((derive_vd){P[19], P[20], P[21], P[22]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t263_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){P[42], P[43], P[44], P[45]}), v_t263_0);
+    const derive_vd v_t263_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){P[65], P[66], P[67], P[68]}), v_t263_1);
+    const derive_vd v_t263_3 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){P[295], P[296], P[297], P[298]}), v_t263_2);
+    const derive_vd v_t263_4 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){P[318], P[319], P[320], P[321]}), v_t263_3);
+    const derive_vd v_t263 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){P[341], P[342], P[343], P[344]}), v_t263_4);
+    const double t264 = v_t263[1];
+    const double t265 = v_t263[2];
+    const double t266 = v_t263[3];
+    *(derive_vd_unaligned *)&P_new[88] = ((derive_vd){t262, t264, t265, t266});
+    *(derive_vd_unaligned *)&P_new[460] = ((derive_vd){t204, t224, t244, t264});
+    #else
+    const double t264 = DERIVE_FMA(t180, P[342], DERIVE_FMA(t179, P[319], DERIVE_FMA(t178, P[296], DERIVE_FMA(t121, P[66], DERIVE_FMA(t120, P[43], DERIVE_FMA(t119, P[20], P[89]))))));
+    const double t265 = DERIVE_FMA(t180, P[343], DERIVE_FMA(t179, P[320], DERIVE_FMA(t178, P[297], DERIVE_FMA(t121, P[67], DERIVE_FMA(t120, P[44], DERIVE_FMA(t119, P[21], P[90]))))));
+    const double t266 = DERIVE_FMA(t180, P[344], DERIVE_FMA(t179, P[321], DERIVE_FMA(t178, P[298], DERIVE_FMA(t121, P[68], DERIVE_FMA(t120, P[45], DERIVE_FMA(t119, P[22], P[91]))))));
+    P_new[89] = t264;
+    P_new[463] = t264;
+    P_new[90] = t265;
+    P_new[486] = t265;
+    P_new[91] = t266;
+    P_new[509] = t266;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t267_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t267_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t267_0);
+    const derive_vd v_t267_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[46], P[47], P[48], P[49]}), v_t267_1);
+    const derive_vd v_t267_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t267_2);
+    const derive_vd v_t267_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[299], P[300], P[301], P[302]}), v_t267_3);
+    const derive_vd v_t267 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[322], P[323], P[324], P[325]}), v_t267_4);
+    const double t267 = v_t267[0];
+    const double t268 = v_t267[1];
+    const double t269 = v_t267[2];
+    const double t270 = v_t267[3];
+    #else
+    const double t267 = DERIVE_FMA(t183, P[322], DERIVE_FMA(t182, P[299], DERIVE_FMA(t181, P[276], DERIVE_FMA(t127, P[46], DERIVE_FMA(t126, P[23], DERIVE_FMA(t125, P[0], P[92]))))));
+    const double t268 = DERIVE_FMA(t183, P[323], DERIVE_FMA(t182, P[300], DERIVE_FMA(t181, P[277], DERIVE_FMA(t127, P[47], DERIVE_FMA(t126, P[24], DERIVE_FMA(t125, P[1], P[93]))))));
+    const double t269 = DERIVE_FMA(t183, P[324], DERIVE_FMA(t182, P[301], DERIVE_FMA(t181, P[278], DERIVE_FMA(t127, P[48], DERIVE_FMA(t126, P[25], DERIVE_FMA(t125, P[2], P[94]))))));
+    const double t270 = DERIVE_FMA(t183, P[325], DERIVE_FMA(t182, P[302], DERIVE_FMA(t181, P[279], DERIVE_FMA(t127, P[49], DERIVE_FMA(t126, P[26], DERIVE_FMA(t125, P[3], P[95]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t271_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
+    const derive_vd v_t271_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[27], P[28], P[29], P[30]}), v_t271_0);
+    const derive_vd v_t271_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[50], P[51], P[52], P[53]}), v_t271_1);
+    const derive_vd v_t271_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t271_2);
+    const derive_vd v_t271_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[303], P[304], P[305], P[306]}), v_t271_3);
+    const derive_vd v_t271 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[326], P[327], P[328], P[329]}), v_t271_4);
+    const double t271 = v_t271[0];
+    #else
+    const double t271 = DERIVE_FMA(t183, P[326], DERIVE_FMA(t182, P[303], DERIVE_FMA(t181, P[280], DERIVE_FMA(t127, P[50], DERIVE_FMA(t126, P[27], DERIVE_FMA(t125, P[4], P[96]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t275_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t275_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[31], P[32], P[33], P[34]}), v_t275_0);
+    const derive_vd v_t275_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[54], P[55], P[56], P[57]}), v_t275_1);
+    const derive_vd v_t275_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t275_2);
+    const derive_vd v_t275_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[307], P[308], P[309], P[310]}), v_t275_3);
+    const derive_vd v_t275 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[330], P[331], P[332], P[333]}), v_t275_4);
+    const double t276 = v_t275[1];
+    const double t277 = v_t275[2];
+    const double t278 = v_t275[3];
+    *(derive_vd_unaligned *)&P_new[208] = ((derive_vd){t212, t232, t252, t276});
+    #else
+    const double t276 = DERIVE_FMA(t183, P[331], DERIVE_FMA(t182, P[308], DERIVE_FMA(t181, P[285], DERIVE_FMA(t127, P[55], DERIVE_FMA(t126, P[32], DERIVE_FMA(t125, P[9], P[101]))))));
+    const double t277 = DERIVE_FMA(t183, P[332], DERIVE_FMA(t182, P[309], DERIVE_FMA(t181, P[286], DERIVE_FMA(t127, P[56], DERIVE_FMA(t126, P[33], DERIVE_FMA(t125, P[10], P[102]))))));
+    const double t278 = DERIVE_FMA(t183, P[333], DERIVE_FMA(t182, P[310], DERIVE_FMA(t181, P[287], DERIVE_FMA(t127, P[57], DERIVE_FMA(t126, P[34], DERIVE_FMA(t125, P[11], P[103]))))));
+    P_new[101] = t276;
+    P_new[211] = t276;
+    P_new[102] = t277;
+    P_new[234] = t277;
+    P_new[103] = t278;
+    P_new[257] = t278;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t279_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t279_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[35], P[36], P[37], P[38]}), v_t279_0);
+    const derive_vd v_t279_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[58], P[59], P[60], P[61]}), v_t279_1);
+    const derive_vd v_t279_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t279_2);
+    const derive_vd v_t279_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[311], P[312], P[313], P[314]}), v_t279_3);
+    const derive_vd v_t279 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[334], P[335], P[336], P[337]}), v_t279_4);
+    const double t279 = v_t279[0];
+    const double t280 = v_t279[1];
+    const double t281 = v_t279[2];
+    const double t282 = v_t279[3];
+    *(derive_vd_unaligned *)&P_new[104] = v_t279;
+    *(derive_vd_unaligned *)&P_new[300] = ((derive_vd){t216, t236, t256, t280});
+    #else
+    const double t279 = DERIVE_FMA(t183, P[334], DERIVE_FMA(t182, P[311], DERIVE_FMA(t181, P[288], DERIVE_FMA(t127, P[58], DERIVE_FMA(t126, P[35], DERIVE_FMA(t125, P[12], P[104]))))));
+    const double t280 = DERIVE_FMA(t183, P[335], DERIVE_FMA(t182, P[312], DERIVE_FMA(t181, P[289], DERIVE_FMA(t127, P[59], DERIVE_FMA(t126, P[36], DERIVE_FMA(t125, P[13], P[105]))))));
+    const double t281 = DERIVE_FMA(t183, P[336], DERIVE_FMA(t182, P[313], DERIVE_FMA(t181, P[290], DERIVE_FMA(t127, P[60], DERIVE_FMA(t126, P[37], DERIVE_FMA(t125, P[14], P[106]))))));
+    const double t282 = DERIVE_FMA(t183, P[337], DERIVE_FMA(t182, P[314], DERIVE_FMA(t181, P[291], DERIVE_FMA(t127, P[61], DERIVE_FMA(t126, P[38], DERIVE_FMA(t125, P[15], P[107]))))));
+    P_new[104] = t279;
+    P_new[280] = t279;
+    P_new[105] = t280;
+    P_new[303] = t280;
+    P_new[106] = t281;
+    P_new[326] = t281;
+    P_new[107] = t282;
+    P_new[349] = t282;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t283_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t283_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[39], P[40], P[41], P[42]}), v_t283_0);
+    const derive_vd v_t283_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[62], P[63], P[64], P[65]}), v_t283_1);
+    const derive_vd v_t283_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[292], P[293], P[294], P[295]}), v_t283_2);
+    const derive_vd v_t283_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[315], P[316], P[317], P[318]}), v_t283_3);
+    const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[338], P[339], P[340], P[341]}), v_t283_4);
+    const double t283 = v_t283[0];
+    const double t284 = v_t283[1];
+    const double t285 = v_t283[2];
+    const double t286 = v_t283[3];
+    *(derive_vd_unaligned *)&P_new[108] = v_t283;
+    *(derive_vd_unaligned *)&P_new[392] = ((derive_vd){t220, t240, t260, t284});
+    #else
+    const double t283 = DERIVE_FMA(t183, P[338], DERIVE_FMA(t182, P[315], DERIVE_FMA(t181, P[292], DERIVE_FMA(t127, P[62], DERIVE_FMA(t126, P[39], DERIVE_FMA(t125, P[16], P[108]))))));
+    const double t284 = DERIVE_FMA(t183, P[339], DERIVE_FMA(t182, P[316], DERIVE_FMA(t181, P[293], DERIVE_FMA(t127, P[63], DERIVE_FMA(t126, P[40], DERIVE_FMA(t125, P[17], P[109]))))));
+    const double t285 = DERIVE_FMA(t183, P[340], DERIVE_FMA(t182, P[317], DERIVE_FMA(t181, P[294], DERIVE_FMA(t127, P[64], DERIVE_FMA(t126, P[41], DERIVE_FMA(t125, P[18], P[110]))))));
+    const double t286 = DERIVE_FMA(t183, P[341], DERIVE_FMA(t182, P[318], DERIVE_FMA(t181, P[295], DERIVE_FMA(t127, P[65], DERIVE_FMA(t126, P[42], DERIVE_FMA(t125, P[19], P[111]))))));
+    P_new[108] = t283;
+    P_new[372] = t283;
+    P_new[109] = t284;
+    P_new[395] = t284;
+    P_new[110] = t285;
+    P_new[418] = t285;
+    P_new[111] = t286;
+    P_new[441] = t286;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t287_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){P[19], P[20], P[21], P[22]}), ((derive_vd){P[111], P[112], P[113], P[114]}));
+    const derive_vd v_t287_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){P[42], P[43], P[44], P[45]}), v_t287_0);
+    const derive_vd v_t287_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){P[65], P[66], P[67], P[68]}), v_t287_1);
+    const derive_vd v_t287_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[295], P[296], P[297], P[298]}), v_t287_2);
+    const derive_vd v_t287_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[318], P[319], P[320], P[321]}), v_t287_3);
+    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[341], P[342], P[343], P[344]}), v_t287_4);
+    const double t288 = v_t287[1];
+    const double t289 = v_t287[2];
+    const double t290 = v_t287[3];
+    *(derive_vd_unaligned *)&P_new[484] = ((derive_vd){t225, t245, t265, t289});
+    #else
+    const double t288 = DERIVE_FMA(t183, P[342], DERIVE_FMA(t182, P[319], DERIVE_FMA(t181, P[296], DERIVE_FMA(t127, P[66], DERIVE_FMA(t126, P[43], DERIVE_FMA(t125, P[20], P[112]))))));
+    const double t289 = DERIVE_FMA(t183, P[343], DERIVE_FMA(t182, P[320], DERIVE_FMA(t181, P[297], DERIVE_FMA(t127, P[67], DERIVE_FMA(t126, P[44], DERIVE_FMA(t125, P[21], P[113]))))));
+    const double t290 = DERIVE_FMA(t183, P[344], DERIVE_FMA(t182, P[321], DERIVE_FMA(t181, P[298], DERIVE_FMA(t127, P[68], DERIVE_FMA(t126, P[45], DERIVE_FMA(t125, P[22], P[114]))))));
+    P_new[112] = t288;
+    P_new[464] = t288;
+    P_new[113] = t289;
+    P_new[487] = t289;
+    P_new[114] = t290;
+    P_new[510] = t290;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t291_0 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[115], P[116], P[117], P[118]}));
+    const derive_vd v_t291_1 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[23], P[24], P[25], P[26]}), v_t291_0);
+    const derive_vd v_t291_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[46], P[47], P[48], P[49]}), v_t291_1);
+    const derive_vd v_t291_3 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t291_2);
+    const derive_vd v_t291_4 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), ((derive_vd){P[299], P[300], P[301], P[302]}), v_t291_3);
+    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[322], P[323], P[324], P[325]}), v_t291_4);
+    const double t291 = v_t291[0];
+    const double t292 = v_t291[1];
+    const double t293 = v_t291[2];
+    const double t294 = v_t291[3];
+    #else
+    const double t291 = DERIVE_FMA(t186, P[322], DERIVE_FMA(t185, P[299], DERIVE_FMA(t184, P[276], DERIVE_FMA(t133, P[46], DERIVE_FMA(t132, P[23], DERIVE_FMA(t131, P[0], P[115]))))));
+    const double t292 = DERIVE_FMA(t186, P[323], DERIVE_FMA(t185, P[300], DERIVE_FMA(t184, P[277], DERIVE_FMA(t133, P[47], DERIVE_FMA(t132, P[24], DERIVE_FMA(t131, P[1], P[116]))))));
+    const double t293 = DERIVE_FMA(t186, P[324], DERIVE_FMA(t185, P[301], DERIVE_FMA(t184, P[278], DERIVE_FMA(t133, P[48], DERIVE_FMA(t132, P[25], DERIVE_FMA(t131, P[2], P[117]))))));
+    const double t294 = DERIVE_FMA(t186, P[325], DERIVE_FMA(t185, P[302], DERIVE_FMA(t184, P[279], DERIVE_FMA(t133, P[49], DERIVE_FMA(t132, P[26], DERIVE_FMA(t131, P[3], P[118]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t295_0 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[119], P[120], P[121], P[122]}));
+    const derive_vd v_t295_1 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[27], P[28], P[29], P[30]}), v_t295_0);
+    const derive_vd v_t295_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[50], P[51], P[52], P[53]}), v_t295_1);
+    const derive_vd v_t295_3 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t295_2);
+    const derive_vd v_t295_4 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), ((derive_vd){P[303], P[304], P[305], P[306]}), v_t295_3);
+    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[326], P[327], P[328], P[329]}), v_t295_4);
+    const double t295 = v_t295[0];
+    const double t296 = v_t295[1];
+    #else
+    const double t295 = DERIVE_FMA(t186, P[326], DERIVE_FMA(t185, P[303], DERIVE_FMA(t184, P[280], DERIVE_FMA(t133, P[50], DERIVE_FMA(t132, P[27], DERIVE_FMA(t131, P[4], P[119]))))));
+    const double t296 = DERIVE_FMA(t186, P[327], DERIVE_FMA(t185, P[304], DERIVE_FMA(t184, P[281], DERIVE_FMA(t133, P[51], DERIVE_FMA(t132, P[28], DERIVE_FMA(t131, P[5], P[120]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t299_0 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[123], P[124], P[125], P[126]}));
+    const derive_vd v_t299_1 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[31], P[32], P[33], P[34]}), v_t299_0);
+    const derive_vd v_t299_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[54], P[55], P[56], P[57]}), v_t299_1);
+    const derive_vd v_t299_3 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t299_2);
+    const derive_vd v_t299_4 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), ((derive_vd){P[307], P[308], P[309], P[310]}), v_t299_3);
+    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[330], P[331], P[332], P[333]}), v_t299_4);
+    const double t300 = v_t299[1];
+    const double t301 = v_t299[2];
+    const double t302 = v_t299[3];
+    *(derive_vd_unaligned *)&P_new[232] = ((derive_vd){t233, t253, t277, t301});
+    #else
+    const double t300 = DERIVE_FMA(t186, P[331], DERIVE_FMA(t185, P[308], DERIVE_FMA(t184, P[285], DERIVE_FMA(t133, P[55], DERIVE_FMA(t132, P[32], DERIVE_FMA(t131, P[9], P[124]))))));
+    const double t301 = DERIVE_FMA(t186, P[332], DERIVE_FMA(t185, P[309], DERIVE_FMA(t184, P[286], DERIVE_FMA(t133, P[56], DERIVE_FMA(t132, P[33], DERIVE_FMA(t131, P[10], P[125]))))));
+    const double t302 = DERIVE_FMA(t186, P[333], DERIVE_FMA(t185, P[310], DERIVE_FMA(t184, P[287], DERIVE_FMA(t133, P[57], DERIVE_FMA(t132, P[34], DERIVE_FMA(t131, P[11], P[126]))))));
+    P_new[124] = t300;
+    P_new[212] = t300;
+    P_new[125] = t301;
+    P_new[235] = t301;
+    P_new[126] = t302;
+    P_new[258] = t302;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t303_0 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[127], P[128], P[129], P[130]}));
+    const derive_vd v_t303_1 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[35], P[36], P[37], P[38]}), v_t303_0);
+    const derive_vd v_t303_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[58], P[59], P[60], P[61]}), v_t303_1);
+    const derive_vd v_t303_3 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t303_2);
+    const derive_vd v_t303_4 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), ((derive_vd){P[311], P[312], P[313], P[314]}), v_t303_3);
+    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[334], P[335], P[336], P[337]}), v_t303_4);
+    const double t303 = v_t303[0];
+    const double t304 = v_t303[1];
+    const double t305 = v_t303[2];
+    const double t306 = v_t303[3];
+    *(derive_vd_unaligned *)&P_new[124] = ((derive_vd){t300, t301, t302, t303});
+    *(derive_vd_unaligned *)&P_new[324] = ((derive_vd){t237, t257, t281, t305});
+    #else
+    const double t303 = DERIVE_FMA(t186, P[334], DERIVE_FMA(t185, P[311], DERIVE_FMA(t184, P[288], DERIVE_FMA(t133, P[58], DERIVE_FMA(t132, P[35], DERIVE_FMA(t131, P[12], P[127]))))));
+    const double t304 = DERIVE_FMA(t186, P[335], DERIVE_FMA(t185, P[312], DERIVE_FMA(t184, P[289], DERIVE_FMA(t133, P[59], DERIVE_FMA(t132, P[36], DERIVE_FMA(t131, P[13], P[128]))))));
+    const double t305 = DERIVE_FMA(t186, P[336], DERIVE_FMA(t185, P[313], DERIVE_FMA(t184, P[290], DERIVE_FMA(t133, P[60], DERIVE_FMA(t132, P[37], DERIVE_FMA(t131, P[14], P[129]))))));
+    const double t306 = DERIVE_FMA(t186, P[337], DERIVE_FMA(t185, P[314], DERIVE_FMA(t184, P[291], DERIVE_FMA(t133, P[61], DERIVE_FMA(t132, P[38], DERIVE_FMA(t131, P[15], P[130]))))));
+    P_new[127] = t303;
+    P_new[281] = t303;
+    P_new[128] = t304;
+    P_new[304] = t304;
+    P_new[129] = t305;
+    P_new[327] = t305;
+    P_new[130] = t306;
+    P_new[350] = t306;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t307_0 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[131], P[132], P[133], P[134]}));
+    const derive_vd v_t307_1 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[39], P[40], P[41], P[42]}), v_t307_0);
+    const derive_vd v_t307_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[62], P[63], P[64], P[65]}), v_t307_1);
+    const derive_vd v_t307_3 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), ((derive_vd){P[292], P[293], P[294], P[295]}), v_t307_2);
+    const derive_vd v_t307_4 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), ((derive_vd){P[315], P[316], P[317], P[318]}), v_t307_3);
+    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[338], P[339], P[340], P[341]}), v_t307_4);
+    const double t307 = v_t307[0];
+    const double t308 = v_t307[1];
+    const double t309 = v_t307[2];
+    const double t310 = v_t307[3];
+    *(derive_vd_unaligned *)&P_new[128] = ((derive_vd){t304, t305, t306, t307});
+    *(derive_vd_unaligned *)&P_new[416] = ((derive_vd){t241, t261, t285, t309});
+    #else
+    const double t307 = DERIVE_FMA(t186, P[338], DERIVE_FMA(t185, P[315], DERIVE_FMA(t184, P[292], DERIVE_FMA(t133, P[62], DERIVE_FMA(t132, P[39], DERIVE_FMA(t131, P[16], P[131]))))));
+    const double t308 = DERIVE_FMA(t186, P[339], DERIVE_FMA(t185, P[316], DERIVE_FMA(t184, P[293], DERIVE_FMA(t133, P[63], DERIVE_FMA(t132, P[40], DERIVE_FMA(t131, P[17], P[132]))))));
+    const double t309 = DERIVE_FMA(t186, P[340], DERIVE_FMA(t185, P[317], DERIVE_FMA(t184, P[294], DERIVE_FMA(t133, P[64], DERIVE_FMA(t132, P[41], DERIVE_FMA(t131, P[18], P[133]))))));
+    const double t310 = DERIVE_FMA(t186, P[341], DERIVE_FMA(t185, P[318], DERIVE_FMA(t184, P[295], DERIVE_FMA(t133, P[65], DERIVE_FMA(t132, P[42], DERIVE_FMA(t131, P[19], P[134]))))));
+    P_new[131] = t307;
+    P_new[373] = t307;
+    P_new[132] = t308;
+    P_new[396] = t308;
+    P_new[133] = t309;
+    P_new[419] = t309;
+    P_new[134] = t310;
+    P_new[442] = t310;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t311_0 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), ((derive_vd){P[19], P[20], P[21], P[22]}), ((derive_vd){P[134], P[135], P[136], P[137]}));
+    const derive_vd v_t311_1 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), ((derive_vd){P[42], P[43], P[44], P[45]}), v_t311_0);
+    const derive_vd v_t311_2 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[65], P[66], P[67], P[68]}), v_t311_1);
+    const derive_vd v_t311_3 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), ((derive_vd){P[295], P[296], P[297], P[298]}), v_t311_2);
+    const derive_vd v_t311_4 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), ((derive_vd){P[318], P[319], P[320], P[321]}), v_t311_3);
+    const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[341], P[342], P[343], P[344]}), v_t311_4);
+    const double t312 = v_t311[1];
+    const double t313 = v_t311[2];
+    const double t314 = v_t311[3];
+    *(derive_vd_unaligned *)&P_new[132] = ((derive_vd){t308, t309, t310, t312});
+    *(derive_vd_unaligned *)&P_new[508] = ((derive_vd){t246, t266, t290, t314});
+    #else
+    const double t312 = DERIVE_FMA(t186, P[342], DERIVE_FMA(t185, P[319], DERIVE_FMA(t184, P[296], DERIVE_FMA(t133, P[66], DERIVE_FMA(t132, P[43], DERIVE_FMA(t131, P[20], P[135]))))));
+    const double t313 = DERIVE_FMA(t186, P[343], DERIVE_FMA(t185, P[320], DERIVE_FMA(t184, P[297], DERIVE_FMA(t133, P[67], DERIVE_FMA(t132, P[44], DERIVE_FMA(t131, P[21], P[136]))))));
+    const double t314 = DERIVE_FMA(t186, P[344], DERIVE_FMA(t185, P[321], DERIVE_FMA(t184, P[298], DERIVE_FMA(t133, P[68], DERIVE_FMA(t132, P[45], DERIVE_FMA(t131, P[22], P[137]))))));
+    P_new[135] = t312;
+    P_new[465] = t312;
+    P_new[136] = t313;
+    P_new[488] = t313;
+    P_new[137] = t314;
+    P_new[511] = t314;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[69], P[70], P[71], P[72]}), ((derive_vd){P[138], P[139], P[140], P[141]}));
+    const double t315 = v_t315[0];
+    const double t316 = v_t315[1];
+    const double t317 = v_t315[2];
+    const double t318 = v_t315[3];
+    #else
+    const double t315 = DERIVE_FMA(p[0], P[69], P[138]);
+    const double t316 = DERIVE_FMA(p[0], P[70], P[139]);
+    const double t317 = DERIVE_FMA(p[0], P[71], P[140]);
+    const double t318 = DERIVE_FMA(p[0], P[72], P[141]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t319 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[73], P[74], P[75], P[76]}), ((derive_vd){P[142], P[143], P[144], P[145]}));
+    const double t319 = v_t319[0];
+    const double t320 = v_t319[1];
+    const double t321 = v_t319[2];
+    #else
+    const double t319 = DERIVE_FMA(p[0], P[73], P[142]);
+    const double t320 = DERIVE_FMA(p[0], P[74], P[143]);
+    const double t321 = DERIVE_FMA(p[0], P[75], P[144]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t323 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[77], P[78], P[79], P[80]}), ((derive_vd){P[146], P[147], P[148], P[149]}));
+    const double t324 = v_t323[1];
+    const double t325 = v_t323[2];
+    const double t326 = v_t323[3];
+    *(derive_vd_unaligned *)&P_new[256] = ((derive_vd){t254, t278, t302, t326});
+    #else
+    const double t324 = DERIVE_FMA(p[0], P[78], P[147]);
+    const double t325 = DERIVE_FMA(p[0], P[79], P[148]);
+    const double t326 = DERIVE_FMA(p[0], P[80], P[149]);
+    P_new[147] = t324;
+    P_new[213] = t324;
+    P_new[148] = t325;
+    P_new[236] = t325;
+    P_new[149] = t326;
+    P_new[259] = t326;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t327 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[81], P[82], P[83], P[84]}), ((derive_vd){P[150], P[151], P[152], P[153]}));
+    const double t327 = v_t327[0];
+    const double t328 = v_t327[1];
+    const double t329 = v_t327[2];
+    const double t330 = v_t327[3];
+    *(derive_vd_unaligned *)&P_new[148] = ((derive_vd){t325, t326, t327, t328});
+    *(derive_vd_unaligned *)&P_new[348] = ((derive_vd){t258, t282, t306, t330});
+    #else
+    const double t327 = DERIVE_FMA(p[0], P[81], P[150]);
+    const double t328 = DERIVE_FMA(p[0], P[82], P[151]);
+    const double t329 = DERIVE_FMA(p[0], P[83], P[152]);
+    const double t330 = DERIVE_FMA(p[0], P[84], P[153]);
+    P_new[150] = t327;
+    P_new[282] = t327;
+    P_new[151] = t328;
+    P_new[305] = t328;
+    P_new[152] = t329;
+    P_new[328] = t329;
+    P_new[153] = t330;
+    P_new[351] = t330;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t331 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[85], P[86], P[87], P[88]}), ((derive_vd){P[154], P[155], P[156], P[157]}));
+    const double t331 = v_t331[0];
+    const double t332 = v_t331[1];
+    const double t333 = v_t331[2];
+    const double t334 = v_t331[3];
+    *(derive_vd_unaligned *)&P_new[152] = ((derive_vd){t329, t330, t331, t332});
+    *(derive_vd_unaligned *)&P_new[440] = ((derive_vd){t262, t286, t310, t334});
+    #else
+    const double t331 = DERIVE_FMA(p[0], P[85], P[154]);
+    const double t332 = DERIVE_FMA(p[0], P[86], P[155]);
+    const double t333 = DERIVE_FMA(p[0], P[87], P[156]);
+    const double t334 = DERIVE_FMA(p[0], P[88], P[157]);
+    P_new[154] = t331;
+    P_new[374] = t331;
+    P_new[155] = t332;
+    P_new[397] = t332;
+    P_new[156] = t333;
+    P_new[420] = t333;
+    P_new[157] = t334;
+    P_new[443] = t334;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t335 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[88], P[89], P[90], P[91]}), ((derive_vd){P[157], P[158], P[159], P[160]}));
+    const double t336 = v_t335[1];
+    const double t337 = v_t335[2];
+    const double t338 = v_t335[3];
+    *(derive_vd_unaligned *)&P_new[156] = ((derive_vd){t333, t334, t336, t337});
+    #else
+    const double t336 = DERIVE_FMA(p[0], P[89], P[158]);
+    const double t337 = DERIVE_FMA(p[0], P[90], P[159]);
+    const double t338 = DERIVE_FMA(p[0], P[91], P[160]);
+    P_new[158] = t336;
+    P_new[466] = t336;
+    P_new[159] = t337;
+    P_new[489] = t337;
+    P_new[160] = t338;
+    P_new[512] = t338;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[92], P[93], P[94], P[95]}), ((derive_vd){P[161], P[162], P[163], P[164]}));
+    const double t339 = v_t339[0];
+    const double t340 = v_t339[1];
+    const double t341 = v_t339[2];
+    const double t342 = v_t339[3];
+    #else
+    const double t339 = DERIVE_FMA(p[0], P[92], P[161]);
+    const double t340 = DERIVE_FMA(p[0], P[93], P[162]);
+    const double t341 = DERIVE_FMA(p[0], P[94], P[163]);
+    const double t342 = DERIVE_FMA(p[0], P[95], P[164]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[165], P[166], P[167], P[168]}));
+    const double t343 = v_t343[0];
+    const double t344 = v_t343[1];
+    const double t345 = v_t343[2];
+    const double t346 = v_t343[3];
+    #else
+    const double t343 = DERIVE_FMA(p[0], P[96], P[165]);
+    const double t344 = DERIVE_FMA(p[0], P[97], P[166]);
+    const double t345 = DERIVE_FMA(p[0], P[98], P[167]);
+    const double t346 = DERIVE_FMA(p[0], P[99], P[168]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[100], P[101], P[102], P[103]}), ((derive_vd){P[169], P[170], P[171], P[172]}));
+    const double t348 = v_t347[1];
+    const double t349 = v_t347[2];
+    const double t350 = v_t347[3];
+    #else
+    const double t348 = DERIVE_FMA(p[0], P[101], P[170]);
+    const double t349 = DERIVE_FMA(p[0], P[102], P[171]);
+    const double t350 = DERIVE_FMA(p[0], P[103], P[172]);
+    P_new[170] = t348;
+    P_new[214] = t348;
+    P_new[171] = t349;
+    P_new[237] = t349;
+    P_new[172] = t350;
+    P_new[260] = t350;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t351 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[104], P[105], P[106], P[107]}), ((derive_vd){P[173], P[174], P[175], P[176]}));
+    const double t351 = v_t351[0];
+    const double t352 = v_t351[1];
+    const double t353 = v_t351[2];
+    const double t354 = v_t351[3];
+    *(derive_vd_unaligned *)&P_new[172] = ((derive_vd){t350, t351, t352, t353});
+    *(derive_vd_unaligned *)&P_new[280] = ((derive_vd){t279, t303, t327, t351});
+    #else
+    const double t351 = DERIVE_FMA(p[0], P[104], P[173]);
+    const double t352 = DERIVE_FMA(p[0], P[105], P[174]);
+    const double t353 = DERIVE_FMA(p[0], P[106], P[175]);
+    const double t354 = DERIVE_FMA(p[0], P[107], P[176]);
+    P_new[173] = t351;
+    P_new[283] = t351;
+    P_new[174] = t352;
+    P_new[306] = t352;
+    P_new[175] = t353;
+    P_new[329] = t353;
+    P_new[176] = t354;
+    P_new[352] = t354;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t355 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[177], P[178], P[179], P[180]}));
+    const double t355 = v_t355[0];
+    const double t356 = v_t355[1];
+    const double t357 = v_t355[2];
+    const double t358 = v_t355[3];
+    *(derive_vd_unaligned *)&P_new[176] = ((derive_vd){t354, t355, t356, t357});
+    *(derive_vd_unaligned *)&P_new[372] = ((derive_vd){t283, t307, t331, t355});
+    #else
+    const double t355 = DERIVE_FMA(p[0], P[108], P[177]);
+    const double t356 = DERIVE_FMA(p[0], P[109], P[178]);
+    const double t357 = DERIVE_FMA(p[0], P[110], P[179]);
+    const double t358 = DERIVE_FMA(p[0], P[111], P[180]);
+    P_new[177] = t355;
+    P_new[375] = t355;
+    P_new[178] = t356;
+    P_new[398] = t356;
+    P_new[179] = t357;
+    P_new[421] = t357;
+    P_new[180] = t358;
+    P_new[444] = t358;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[111], P[112], P[113], P[114]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const double t360 = v_t359[1];
+    const double t361 = v_t359[2];
+    const double t362 = v_t359[3];
+    *(derive_vd_unaligned *)&P_new[180] = ((derive_vd){t358, t360, t361, t362});
+    *(derive_vd_unaligned *)&P_new[464] = ((derive_vd){t288, t312, t336, t360});
+    #else
+    const double t360 = DERIVE_FMA(p[0], P[112], P[181]);
+    const double t361 = DERIVE_FMA(p[0], P[113], P[182]);
+    const double t362 = DERIVE_FMA(p[0], P[114], P[183]);
+    P_new[181] = t360;
+    P_new[467] = t360;
+    P_new[182] = t361;
+    P_new[490] = t361;
+    P_new[183] = t362;
+    P_new[513] = t362;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[115], P[116], P[117], P[118]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const double t363 = v_t363[0];
+    const double t364 = v_t363[1];
+    const double t365 = v_t363[2];
+    const double t366 = v_t363[3];
+    #else
+    const double t363 = DERIVE_FMA(p[0], P[115], P[184]);
+    const double t364 = DERIVE_FMA(p[0], P[116], P[185]);
+    const double t365 = DERIVE_FMA(p[0], P[117], P[186]);
+    const double t366 = DERIVE_FMA(p[0], P[118], P[187]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[119], P[120], P[121], P[122]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const double t367 = v_t367[0];
+    const double t368 = v_t367[1];
+    const double t369 = v_t367[2];
+    const double t370 = v_t367[3];
+    #else
+    const double t367 = DERIVE_FMA(p[0], P[119], P[188]);
+    const double t368 = DERIVE_FMA(p[0], P[120], P[189]);
+    const double t369 = DERIVE_FMA(p[0], P[121], P[190]);
+    const double t370 = DERIVE_FMA(p[0], P[122], P[191]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[123], P[124], P[125], P[126]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
+    const double t371 = v_t371[0];
+    const double t372 = v_t371[1];
+    const double t373 = v_t371[2];
+    const double t374 = v_t371[3];
+    *(derive_vd_unaligned *)&P_new[212] = ((derive_vd){t300, t324, t348, t372});
+    #else
+    const double t371 = DERIVE_FMA(p[0], P[123], P[192]);
+    const double t372 = DERIVE_FMA(p[0], P[124], P[193]);
+    const double t373 = DERIVE_FMA(p[0], P[125], P[194]);
+    const double t374 = DERIVE_FMA(p[0], P[126], P[195]);
+    P_new[193] = t372;
+    P_new[215] = t372;
+    P_new[194] = t373;
+    P_new[238] = t373;
+    P_new[195] = t374;
+    P_new[261] = t374;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[127], P[128], P[129], P[130]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
+    const double t375 = v_t375[0];
+    const double t376 = v_t375[1];
+    const double t377 = v_t375[2];
+    const double t378 = v_t375[3];
+    *(derive_vd_unaligned *)&P_new[196] = v_t375;
+    *(derive_vd_unaligned *)&P_new[304] = ((derive_vd){t304, t328, t352, t376});
+    #else
+    const double t375 = DERIVE_FMA(p[0], P[127], P[196]);
+    const double t376 = DERIVE_FMA(p[0], P[128], P[197]);
+    const double t377 = DERIVE_FMA(p[0], P[129], P[198]);
+    const double t378 = DERIVE_FMA(p[0], P[130], P[199]);
+    P_new[196] = t375;
+    P_new[284] = t375;
+    P_new[197] = t376;
+    P_new[307] = t376;
+    P_new[198] = t377;
+    P_new[330] = t377;
+    P_new[199] = t378;
+    P_new[353] = t378;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t379 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[131], P[132], P[133], P[134]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const double t379 = v_t379[0];
+    const double t380 = v_t379[1];
+    const double t381 = v_t379[2];
+    const double t382 = v_t379[3];
+    *(derive_vd_unaligned *)&P_new[200] = v_t379;
+    *(derive_vd_unaligned *)&P_new[396] = ((derive_vd){t308, t332, t356, t380});
+    #else
+    const double t379 = DERIVE_FMA(p[0], P[131], P[200]);
+    const double t380 = DERIVE_FMA(p[0], P[132], P[201]);
+    const double t381 = DERIVE_FMA(p[0], P[133], P[202]);
+    const double t382 = DERIVE_FMA(p[0], P[134], P[203]);
+    P_new[200] = t379;
+    P_new[376] = t379;
+    P_new[201] = t380;
+    P_new[399] = t380;
+    P_new[202] = t381;
+    P_new[422] = t381;
+    P_new[203] = t382;
+    P_new[445] = t382;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t383 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[134], P[135], P[136], P[137]}), ((derive_vd){P[203], P[204], P[205], P[206]}));
+    const double t384 = v_t383[1];
+    const double t385 = v_t383[2];
+    const double t386 = v_t383[3];
+    *(derive_vd_unaligned *)&P_new[204] = ((derive_vd){t384, t385, t386, t192});
+    *(derive_vd_unaligned *)&P_new[488] = ((derive_vd){t313, t337, t361, t385});
+    #else
+    const double t384 = DERIVE_FMA(p[0], P[135], P[204]);
+    const double t385 = DERIVE_FMA(p[0], P[136], P[205]);
+    const double t386 = DERIVE_FMA(p[0], P[137], P[206]);
+    P_new[204] = t384;
+    P_new[468] = t384;
+    P_new[205] = t385;
+    P_new[491] = t385;
+    P_new[206] = t386;
+    P_new[514] = t386;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t103, t103, t103, t103}), ((derive_vd){t187, t207, t227, t247}), ((derive_vd){t153, t154, t155, 0.0}));
+    const derive_vd v_t387_1 = DERIVE_VFMA(((derive_vd){t104, t104, t104, t104}), ((derive_vd){t188, t208, t228, t248}), v_t387_0);
+    const derive_vd v_t387_2 = DERIVE_VFMA(((derive_vd){t105, t105, t105, t105}), ((derive_vd){t189, t209, t229, t249}), v_t387_1);
+    const derive_vd v_t387_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t192, t212, t232, t252}), v_t387_2);
+    const derive_vd v_t387_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){t193, t213, t233, t253}), v_t387_3);
+    const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){t194, t214, t234, t254}), v_t387_4);
+    const double t388 = v_t387[1];
+    const double t389 = v_t387[2];
+    const double t390 = v_t387[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t387;
+    *(derive_vd_unaligned *)&P_new[20] = ((derive_vd){t204, t205, t206, t388});
+    #else
+    const double t387 = DERIVE_FMA(t175, t194, DERIVE_FMA(t106, t193, DERIVE_FMA(t71, t192, DERIVE_FMA(t105, t189, DERIVE_FMA(t104, t188, DERIVE_FMA(t103, t187, t153))))));
+    const double t388 = DERIVE_FMA(t175, t214, DERIVE_FMA(t106, t213, DERIVE_FMA(t71, t212, DERIVE_FMA(t105, t209, DERIVE_FMA(t104, t208, DERIVE_FMA(t103, t207, t154))))));
+    const double t389 = DERIVE_FMA(t175, t234, DERIVE_FMA(t106, t233, DERIVE_FMA(t71, t232, DERIVE_FMA(t105, t229, DERIVE_FMA(t104, t228, DERIVE_FMA(t103, t227, t155))))));
+    const double t390 = DERIVE_FMA(t175, t254, DERIVE_FMA(t106, t253, DERIVE_FMA(t71, t252, DERIVE_FMA(t105, t249, DERIVE_FMA(t104, t248, DERIVE_FMA(t103, t247, 0.0))))));
+    P_new[0] = t387;
+    P_new[1] = t388;
+    P_new[23] = t388;
+    P_new[2] = t389;
+    P_new[46] = t389;
+    P_new[3] = t390;
+    P_new[69] = t390;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t391_0 = (((derive_vd){t103, t103, t103, t103}) * ((derive_vd){t267, t291, t315, t339}));
+    const derive_vd v_t391_1 = DERIVE_VFMA(((derive_vd){t104, t104, t104, t104}), ((derive_vd){t268, t292, t316, t340}), v_t391_0);
+    const derive_vd v_t391_2 = DERIVE_VFMA(((derive_vd){t105, t105, t105, t105}), ((derive_vd){t269, t293, t317, t341}), v_t391_1);
+    const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t276, t300, t324, t348}), v_t391_2);
+    const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){t277, t301, t325, t349}), v_t391_3);
+    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){t278, t302, t326, t350}), v_t391_4);
+    const double t391 = v_t391[0];
+    const double t392 = v_t391[1];
+    const double t393 = v_t391[2];
+    const double t394 = v_t391[3];
+    *(derive_vd_unaligned *)&P_new[4] = v_t391;
+    *(derive_vd_unaligned *)&P_new[112] = ((derive_vd){t288, t289, t290, t392});
+    #else
+    const double t391 = DERIVE_FMA(t175, t278, DERIVE_FMA(t106, t277, DERIVE_FMA(t71, t276, DERIVE_FMA(t105, t269, DERIVE_FMA(t104, t268, t103*t267)))));
+    const double t392 = DERIVE_FMA(t175, t302, DERIVE_FMA(t106, t301, DERIVE_FMA(t71, t300, DERIVE_FMA(t105, t293, DERIVE_FMA(t104, t292, t103*t291)))));
+    const double t393 = DERIVE_FMA(t175, t326, DERIVE_FMA(t106, t325, DERIVE_FMA(t71, t324, DERIVE_FMA(t105, t317, DERIVE_FMA(t104, t316, t103*t315)))));
+    const double t394 = DERIVE_FMA(t175, t350, DERIVE_FMA(t106, t349, DERIVE_FMA(t71, t348, DERIVE_FMA(t105, t341, DERIVE_FMA(t104, t340, t103*t339)))));
+    P_new[4] = t391;
+    P_new[92] = t391;
+    P_new[5] = t392;
+    P_new[115] = t392;
+    P_new[6] = t393;
+    P_new[138] = t393;
+    P_new[7] = t394;
+    P_new[161] = t394;
+    #endif
+    const double t395 = DERIVE_FMA(t372, t71, DERIVE_FMA(t175, t374, DERIVE_FMA(t106, t373, DERIVE_FMA(t105, t365, DERIVE_FMA(t104, t364, t103*t363)))));
+    const double t396 = DERIVE_FMA(t213, t71, DERIVE_FMA(t176, t212, DERIVE_FMA(t114, t214, DERIVE_FMA(t113, t209, DERIVE_FMA(t112, t208, DERIVE_FMA(t110, t207, t157))))));
+    const double t397 = DERIVE_FMA(t233, t71, DERIVE_FMA(t176, t232, DERIVE_FMA(t114, t234, DERIVE_FMA(t113, t229, DERIVE_FMA(t112, t228, DERIVE_FMA(t110, t227, t158))))));
+    const double t398 = DERIVE_FMA(t253, t71, DERIVE_FMA(t176, t252, DERIVE_FMA(t114, t254, DERIVE_FMA(t113, t249, DERIVE_FMA(t112, t248, t110*t247)))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t399_0 = (((derive_vd){t110, t110, t110, t110}) * ((derive_vd){t267, t291, t315, t339}));
+    const derive_vd v_t399_1 = DERIVE_VFMA(((derive_vd){t112, t112, t112, t112}), ((derive_vd){t268, t292, t316, t340}), v_t399_0);
+    const derive_vd v_t399_2 = DERIVE_VFMA(((derive_vd){t113, t113, t113, t113}), ((derive_vd){t269, t293, t317, t341}), v_t399_1);
+    const derive_vd v_t399_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){t276, t300, t324, t348}), v_t399_2);
+    const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t277, t301, t325, t349}), v_t399_3);
+    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){t278, t302, t326, t350}), v_t399_4);
+    const double t399 = v_t399[0];
+    const double t400 = v_t399[1];
+    const double t401 = v_t399[2];
+    const double t402 = v_t399[3];
+    *(derive_vd_unaligned *)&P_new[136] = ((derive_vd){t313, t314, t393, t401});
+    #else
+    const double t399 = DERIVE_FMA(t114, t278, DERIVE_FMA(t71, t277, DERIVE_FMA(t176, t276, DERIVE_FMA(t113, t269, DERIVE_FMA(t112, t268, t110*t267)))));
+    const double t400 = DERIVE_FMA(t114, t302, DERIVE_FMA(t71, t301, DERIVE_FMA(t176, t300, DERIVE_FMA(t113, t293, DERIVE_FMA(t112, t292, t110*t291)))));
+    const double t401 = DERIVE_FMA(t114, t326, DERIVE_FMA(t71, t325, DERIVE_FMA(t176, t324, DERIVE_FMA(t113, t317, DERIVE_FMA(t112, t316, t110*t315)))));
+    const double t402 = DERIVE_FMA(t114, t350, DERIVE_FMA(t71, t349, DERIVE_FMA(t176, t348, DERIVE_FMA(t113, t341, DERIVE_FMA(t112, t340, t110*t339)))));
+    P_new[27] = t399;
+    P_new[93] = t399;
+    P_new[28] = t400;
+    P_new[116] = t400;
+    P_new[29] = t401;
+    P_new[139] = t401;
+    P_new[30] = t402;
+    P_new[162] = t402;
+    #endif
+    const double t403 = DERIVE_FMA(t373, t71, DERIVE_FMA(t176, t372, DERIVE_FMA(t114, t374, DERIVE_FMA(t113, t365, DERIVE_FMA(t112, t364, t110*t363)))));
+    const double t404 = DERIVE_FMA(t234, t71, DERIVE_FMA(t177, t233, DERIVE_FMA(t118, t229, DERIVE_FMA(t117, t228, DERIVE_FMA(t116, t227, DERIVE_FMA(t107, t232, t159))))));
+    const double t405 = DERIVE_FMA(t254, t71, DERIVE_FMA(t177, t253, DERIVE_FMA(t118, t249, DERIVE_FMA(t117, t248, DERIVE_FMA(t116, t247, t107*t252)))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t406_0 = (((derive_vd){t116, t116, t116, t116}) * ((derive_vd){t267, t291, t315, t339}));
+    const derive_vd v_t406_1 = DERIVE_VFMA(((derive_vd){t117, t117, t117, t117}), ((derive_vd){t268, t292, t316, t340}), v_t406_0);
+    const derive_vd v_t406_2 = DERIVE_VFMA(((derive_vd){t118, t118, t118, t118}), ((derive_vd){t269, t293, t317, t341}), v_t406_1);
+    const derive_vd v_t406_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){t276, t300, t324, t348}), v_t406_2);
+    const derive_vd v_t406_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){t277, t301, t325, t349}), v_t406_3);
+    const derive_vd v_t406 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t278, t302, t326, t350}), v_t406_4);
+    const double t406 = v_t406[0];
+    const double t407 = v_t406[1];
+    const double t408 = v_t406[2];
+    const double t409 = v_t406[3];
+    *(derive_vd_unaligned *)&P_new[160] = ((derive_vd){t338, t394, t402, t409});
+    #else
+    const double t406 = DERIVE_FMA(t71, t278, DERIVE_FMA(t177, t277, DERIVE_FMA(t107, t276, DERIVE_FMA(t118, t269, DERIVE_FMA(t117, t268, t116*t267)))));
+    const double t407 = DERIVE_FMA(t71, t302, DERIVE_FMA(t177, t301, DERIVE_FMA(t107, t300, DERIVE_FMA(t118, t293, DERIVE_FMA(t117, t292, t116*t291)))));
+    const double t408 = DERIVE_FMA(t71, t326, DERIVE_FMA(t177, t325, DERIVE_FMA(t107, t324, DERIVE_FMA(t118, t317, DERIVE_FMA(t117, t316, t116*t315)))));
+    const double t409 = DERIVE_FMA(t71, t350, DERIVE_FMA(t177, t349, DERIVE_FMA(t107, t348, DERIVE_FMA(t118, t341, DERIVE_FMA(t117, t340, t116*t339)))));
+    P_new[50] = t406;
+    P_new[94] = t406;
+    P_new[51] = t407;
+    P_new[117] = t407;
+    P_new[52] = t408;
+    P_new[140] = t408;
+    P_new[53] = t409;
+    P_new[163] = t409;
+    #endif
+    const double t410 = DERIVE_FMA(t374, t71, DERIVE_FMA(t177, t373, DERIVE_FMA(t118, t365, DERIVE_FMA(t117, t364, DERIVE_FMA(t116, t363, t107*t372)))));
+    const double t411 = DERIVE_FMA(t180, t257, DERIVE_FMA(t179, t256, DERIVE_FMA(t178, t255, DERIVE_FMA(t121, t249, DERIVE_FMA(t120, t248, DERIVE_FMA(t119, t247, t160 + t250))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t412_0 = DERIVE_VFMA(((derive_vd){t119, t119, t119, t119}), ((derive_vd){t267, t291, t315, t339}), ((derive_vd){t161, t162, 0.0, 0.0}));
+    const derive_vd v_t412_1 = DERIVE_VFMA(((derive_vd){t120, t120, t120, t120}), ((derive_vd){t268, t292, t316, t340}), v_t412_0);
+    const derive_vd v_t412_2 = DERIVE_VFMA(((derive_vd){t121, t121, t121, t121}), ((derive_vd){t269, t293, t317, t341}), v_t412_1);
+    const derive_vd v_t412_3 = (v_t412_2 + ((derive_vd){t270, t294, t318, t342}));
+    const derive_vd v_t412_4 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){t279, t303, t327, t351}), v_t412_3);
+    const derive_vd v_t412_5 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){t280, t304, t328, t352}), v_t412_4);
+    const derive_vd v_t412 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){t281, t305, t329, t353}), v_t412_5);
+    const double t412 = v_t412[0];
+    const double t413 = v_t412[1];
+    const double t414 = v_t412[2];
+    const double t415 = v_t412[3];
+    *(derive_vd_unaligned *)&P_new[92] = ((derive_vd){t391, t399, t406, t412});
+    #else
+    const double t412 = DERIVE_FMA(t180, t281, DERIVE_FMA(t179, t280, DERIVE_FMA(t178, t279, DERIVE_FMA(t121, t269, DERIVE_FMA(t120, t268, DERIVE_FMA(t119, t267, t161))) + t270)));
+    const double t413 = DERIVE_FMA(t180, t305, DERIVE_FMA(t179, t304, DERIVE_FMA(t178, t303, DERIVE_FMA(t121, t293, DERIVE_FMA(t120, t292, DERIVE_FMA(t119, t291, t162))) + t294)));
+    const double t414 = DERIVE_FMA(t180, t329, DERIVE_FMA(t179, t328, DERIVE_FMA(t178, t327, DERIVE_FMA(t121, t317, DERIVE_FMA(t120, t316, DERIVE_FMA(t119, t315, 0.0))) + t318)));
+    const double t415 = DERIVE_FMA(t180, t353, DERIVE_FMA(t179, t352, DERIVE_FMA(t178, t351, DERIVE_FMA(t121, t341, DERIVE_FMA(t120, t340, DERIVE_FMA(t119, t339, 0.0))) + t342)));
+    P_new[73] = t412;
+    P_new[95] = t412;
+    P_new[74] = t413;
+    P_new[118] = t413;
+    P_new[75] = t414;
+    P_new[141] = t414;
+    P_new[76] = t415;
+    P_new[164] = t415;
+    #endif
+    const double t416 = DERIVE_FMA(t180, t377, DERIVE_FMA(t179, t376, DERIVE_FMA(t178, t375, DERIVE_FMA(t121, t365, DERIVE_FMA(t120, t364, DERIVE_FMA(t119, t363, t366))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t417_0 = DERIVE_VFMA(((derive_vd){t125, t125, t125, t125}), ((derive_vd){t267, t291, t315, t339}), ((derive_vd){t163, t164, 0.0, 0.0}));
+    const derive_vd v_t417_1 = DERIVE_VFMA(((derive_vd){t126, t126, t126, t126}), ((derive_vd){t268, t292, t316, t340}), v_t417_0);
+    const derive_vd v_t417_2 = DERIVE_VFMA(((derive_vd){t127, t127, t127, t127}), ((derive_vd){t269, t293, t317, t341}), v_t417_1);
+    const derive_vd v_t417_3 = (v_t417_2 + ((derive_vd){t271, t295, t319, t343}));
+    const derive_vd v_t417_4 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){t279, t303, t327, t351}), v_t417_3);
+    const derive_vd v_t417_5 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){t280, t304, t328, t352}), v_t417_4);
+    const derive_vd v_t417 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){t281, t305, t329, t353}), v_t417_5);
+    const double t418 = v_t417[1];
+    const double t419 = v_t417[2];
+    const double t420 = v_t417[3];
+    *(derive_vd_unaligned *)&P_new[96] = v_t417;
+    *(derive_vd_unaligned *)&P_new[116] = ((derive_vd){t400, t407, t413, t418});
+    #else
+    const double t417 = DERIVE_FMA(t183, t281, DERIVE_FMA(t182, t280, DERIVE_FMA(t181, t279, DERIVE_FMA(t127, t269, DERIVE_FMA(t126, t268, DERIVE_FMA(t125, t267, t163))) + t271)));
+    const double t418 = DERIVE_FMA(t183, t305, DERIVE_FMA(t182, t304, DERIVE_FMA(t181, t303, DERIVE_FMA(t127, t293, DERIVE_FMA(t126, t292, DERIVE_FMA(t125, t291, t164))) + t295)));
+    const double t419 = DERIVE_FMA(t183, t329, DERIVE_FMA(t182, t328, DERIVE_FMA(t181, t327, DERIVE_FMA(t127, t317, DERIVE_FMA(t126, t316, DERIVE_FMA(t125, t315, 0.0))) + t319)));
+    const double t420 = DERIVE_FMA(t183, t353, DERIVE_FMA(t182, t352, DERIVE_FMA(t181, t351, DERIVE_FMA(t127, t341, DERIVE_FMA(t126, t340, DERIVE_FMA(t125, t339, 0.0))) + t343)));
+    P_new[96] = t417;
+    P_new[97] = t418;
+    P_new[119] = t418;
+    P_new[98] = t419;
+    P_new[142] = t419;
+    P_new[99] = t420;
+    P_new[165] = t420;
+    #endif
+    const double t421 = DERIVE_FMA(t183, t377, DERIVE_FMA(t182, t376, DERIVE_FMA(t181, t375, DERIVE_FMA(t127, t365, DERIVE_FMA(t126, t364, DERIVE_FMA(t125, t363, t367))))));
+    const double t422 = DERIVE_FMA(t186, t305, DERIVE_FMA(t185, t304, DERIVE_FMA(t184, t303, DERIVE_FMA(t133, t293, DERIVE_FMA(t132, t292, DERIVE_FMA(t131, t291, t165 + t296))))));
+    const double t423 = DERIVE_FMA(t186, t329, DERIVE_FMA(t185, t328, DERIVE_FMA(t184, t327, DERIVE_FMA(t133, t317, DERIVE_FMA(t132, t316, DERIVE_FMA(t131, t315, t320))))));
+    const double t424 = DERIVE_FMA(t186, t353, DERIVE_FMA(t185, t352, DERIVE_FMA(t184, t351, DERIVE_FMA(t133, t341, DERIVE_FMA(t132, t340, DERIVE_FMA(t131, t339, t344))))));
+    const double t425 = DERIVE_FMA(t186, t377, DERIVE_FMA(t185, t376, DERIVE_FMA(t184, t375, DERIVE_FMA(t133, t365, DERIVE_FMA(t132, t364, DERIVE_FMA(t131, t363, t368))))));
+    const double t426 = DERIVE_FMA(p[0], t318, t321);
+    const double t427 = DERIVE_FMA(p[0], t342, t345);
+    const double t428 = DERIVE_FMA(p[0], t366, t369);
+    const double t429 = DERIVE_FMA(p[0], t343, t346);
+    const double t430 = DERIVE_FMA(p[0], t367, t370);
+    const double t431 = DERIVE_FMA(p[0], t368, t371);
+    const double t432 = P[216] + t166;
+    const double t433 = P[240] + t166;
+    const double t434 = P[264] + t166;
+    const double t435 = P[288] + t167;
+    const double t436 = P[312] + t167;
+    const double t437 = P[336] + t167;
+    const double t438 = P[360] + t167;
+    const double t439 = P[384] + t167;
+    const double t440 = P[408] + t167;
+    const double t441 = P[432] + t167;
+    const double t442 = P[456] + t167;
+    const double t443 = P[480] + t167;
+    const double t444 = P[504] + t168;
+    const double t445 = P[528] + t168;
+    #if DERIVE_VECTOR
+    x_new[0] = t171;
+    x_new[1] = t172;
+    x_new[2] = t173;
+    x_new[3] = t174;
     x_new[4] = t97;
     x_new[5] = t98;
     x_new[6] = t99;
@@ -549,223 +1522,79 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     x_new[21] = x[21];
     x_new[22] = x[22];
     x_new[23] = x[23];
-    P_new[0] = t415;
-    P_new[1] = t416;
-    P_new[2] = t417;
-    P_new[3] = t373;
-    P_new[4] = t374;
-    P_new[5] = t375;
-    P_new[6] = t376;
-    P_new[7] = t377;
-    P_new[8] = t378;
-    P_new[9] = t180;
-    P_new[10] = t182;
-    P_new[11] = t184;
-    P_new[12] = t185;
-    P_new[13] = t186;
-    P_new[14] = t187;
-    P_new[15] = t188;
-    P_new[16] = t189;
-    P_new[17] = t190;
-    P_new[18] = t191;
-    P_new[19] = t192;
-    P_new[20] = t193;
-    P_new[21] = t194;
-    P_new[22] = t195;
-    P_new[23] = t416;
-    P_new[24] = t418;
-    P_new[25] = t419;
-    P_new[26] = t381;
-    P_new[27] = t382;
-    P_new[28] = t383;
-    P_new[29] = t384;
-    P_new[30] = t385;
-    P_new[31] = t386;
-    P_new[32] = t205;
-    P_new[33] = t207;
-    P_new[34] = t209;
-    P_new[35] = t210;
-    P_new[36] = t211;
-    P_new[37] = t212;
-    P_new[38] = t213;
-    P_new[39] = t214;
-    P_new[40] = t215;
-    P_new[41] = t216;
-    P_new[42] = t217;
-    P_new[43] = t218;
-    P_new[44] = t219;
-    P_new[45] = t220;
-    P_new[46] = t417;
-    P_new[47] = t419;
-    P_new[48] = t420;
-    P_new[49] = t388;
-    P_new[50] = t389;
-    P_new[51] = t390;
-    P_new[52] = t391;
-    P_new[53] = t392;
-    P_new[54] = t393;
-    P_new[55] = t230;
-    P_new[56] = t231;
-    P_new[57] = t232;
-    P_new[58] = t233;
-    P_new[59] = t234;
-    P_new[60] = t235;
-    P_new[61] = t236;
-    P_new[62] = t237;
-    P_new[63] = t238;
-    P_new[64] = t239;
-    P_new[65] = t240;
-    P_new[66] = t241;
-    P_new[67] = t242;
-    P_new[68] = t243;
-    P_new[69] = t373;
-    P_new[70] = t381;
-    P_new[71] = t388;
-    P_new[72] = t421;
-    P_new[73] = t422;
-    P_new[74] = t423;
-    P_new[75] = t397;
-    P_new[76] = t398;
-    P_new[77] = t399;
-    P_new[78] = t253;
-    P_new[79] = t254;
-    P_new[80] = t255;
-    P_new[81] = t256;
-    P_new[82] = t257;
-    P_new[83] = t258;
-    P_new[84] = t259;
-    P_new[85] = t260;
-    P_new[86] = t261;
-    P_new[87] = t262;
-    P_new[88] = t263;
-    P_new[89] = t264;
-    P_new[90] = t265;
-    P_new[91] = t266;
-    P_new[92] = t374;
-    P_new[93] = t382;
-    P_new[94] = t389;
-    P_new[95] = t422;
-    P_new[96] = t424;
-    P_new[97] = t425;
-    P_new[98] = t402;
-    P_new[99] = t403;
-    P_new[100] = t404;
+    P_new[8] = t395;
+    P_new[9] = t192;
+    P_new[10] = t193;
+    P_new[11] = t194;
+    P_new[24] = t396;
+    P_new[25] = t397;
+    P_new[26] = t398;
+    P_new[27] = t399;
+    P_new[28] = t400;
+    P_new[29] = t401;
+    P_new[30] = t402;
+    P_new[31] = t403;
+    P_new[44] = t225;
+    P_new[45] = t226;
+    P_new[46] = t389;
+    P_new[47] = t397;
+    P_new[48] = t404;
+    P_new[49] = t405;
+    P_new[50] = t406;
+    P_new[51] = t407;
+    P_new[52] = t408;
+    P_new[53] = t409;
+    P_new[54] = t410;
+    P_new[55] = t232;
+    P_new[68] = t246;
+    P_new[69] = t390;
+    P_new[70] = t398;
+    P_new[71] = t405;
+    P_new[72] = t411;
+    P_new[73] = t412;
+    P_new[74] = t413;
+    P_new[75] = t414;
+    P_new[76] = t415;
+    P_new[77] = t416;
+    P_new[78] = t252;
+    P_new[79] = t253;
+    P_new[100] = t421;
     P_new[101] = t276;
     P_new[102] = t277;
     P_new[103] = t278;
-    P_new[104] = t279;
-    P_new[105] = t280;
-    P_new[106] = t281;
-    P_new[107] = t282;
-    P_new[108] = t283;
-    P_new[109] = t284;
-    P_new[110] = t285;
-    P_new[111] = t286;
-    P_new[112] = t287;
-    P_new[113] = t288;
-    P_new[114] = t289;
-    P_new[115] = t375;
-    P_new[116] = t383;
-    P_new[117] = t390;
-    P_new[118] = t423;
-    P_new[119] = t425;
-    P_new[120] = t426;
-    P_new[121] = t406;
-    P_new[122] = t407;
-    P_new[123] = t408;
-    P_new[124] = t299;
-    P_new[125] = t300;
-    P_new[126] = t301;
-    P_new[127] = t302;
-    P_new[128] = t303;
-    P_new[129] = t304;
-    P_new[130] = t305;
-    P_new[131] = t306;
-    P_new[132] = t307;
-    P_new[133] = t308;
-    P_new[134] = t309;
-    P_new[135] = t310;
-    P_new[136] = t311;
-    P_new[137] = t312;
-    P_new[138] = t376;
-    P_new[139] = t384;
-    P_new[140] = t391;
-    P_new[141] = t397;
-    P_new[142] = t402;
-    P_new[143] = t406;
-    P_new[144] = t409;
-    P_new[145] = t410;
-    P_new[146] = t411;
-    P_new[147] = t321;
-    P_new[148] = t322;
-    P_new[149] = t323;
-    P_new[150] = t324;
-    P_new[151] = t325;
-    P_new[152] = t326;
-    P_new[153] = t327;
-    P_new[154] = t328;
-    P_new[155] = t329;
-    P_new[156] = t330;
-    P_new[157] = t331;
-    P_new[158] = t332;
-    P_new[159] = t333;
-    P_new[160] = t334;
-    P_new[161] = t377;
-    P_new[162] = t385;
-    P_new[163] = t392;
-    P_new[164] = t398;
-    P_new[165] = t403;
-    P_new[166] = t407;
-    P_new[167] = t410;
-    P_new[168] = t412;
-    P_new[169] = t413;
-    P_new[170] = t340;
-    P_new[171] = t341;
-    P_new[172] = t342;
-    P_new[173] = t343;
-    P_new[174] = t344;
-    P_new[175] = t345;
-    P_new[176] = t346;
-    P_new[177] = t347;
-    P_new[178] = t348;
-    P_new[179] = t349;
-    P_new[180] = t350;
-    P_new[181] = t351;
-    P_new[182] = t352;
-    P_new[183] = t353;
-    P_new[184] = t378;
-    P_new[185] = t386;
-    P_new[186] = t393;
-    P_new[187] = t399;
-    P_new[188] = t404;
-    P_new[189] = t408;
-    P_new[190] = t411;
-    P_new[191] = t413;
-    P_new[192] = t414;
-    P_new[193] = t356;
-    P_new[194] = t357;
-    P_new[195] = t358;
-    P_new[196] = t359;
-    P_new[197] = t360;
-    P_new[198] = t361;
-    P_new[199] = t362;
-    P_new[200] = t363;
-    P_new[201] = t364;
-    P_new[202] = t365;
-    P_new[203] = t366;
-    P_new[204] = t367;
-    P_new[205] = t368;
-    P_new[206] = t369;
-    P_new[207] = t180;
-    P_new[208] = t205;
-    P_new[209] = t230;
-    P_new[210] = t253;
-    P_new[211] = t276;
-    P_new[212] = t299;
-    P_new[213] = t321;
-    P_new[214] = t340;
-    P_new[215] = t356;
-    P_new[216] = t427;
+    P_new[120] = t422;
+    P_new[121] = t423;
+    P_new[122] = t424;
+    P_new[123] = t425;
+    P_new[140] = t408;
+    P_new[141] = t414;
+    P_new[142] = t419;
+    P_new[143] = t423;
+    P_new[144] = t426;
+    P_new[145] = t427;
+    P_new[146] = t428;
+    P_new[147] = t324;
+    P_new[164] = t415;
+    P_new[165] = t420;
+    P_new[166] = t424;
+    P_new[167] = t427;
+    P_new[168] = t429;
+    P_new[169] = t430;
+    P_new[170] = t348;
+    P_new[171] = t349;
+    P_new[184] = t395;
+    P_new[185] = t403;
+    P_new[186] = t410;
+    P_new[187] = t416;
+    P_new[188] = t421;
+    P_new[189] = t425;
+    P_new[190] = t428;
+    P_new[191] = t430;
+    P_new[192] = t431;
+    P_new[193] = t372;
+    P_new[194] = t373;
+    P_new[195] = t374;
+    P_new[216] = t432;
     P_new[217] = P[217];
     P_new[218] = P[218];
     P_new[219] = P[219];
@@ -779,17 +1608,13 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[227] = P[227];
     P_new[228] = P[228];
     P_new[229] = P[229];
-    P_new[230] = t182;
-    P_new[231] = t207;
-    P_new[232] = t231;
-    P_new[233] = t254;
-    P_new[234] = t277;
-    P_new[235] = t300;
-    P_new[236] = t322;
-    P_new[237] = t341;
-    P_new[238] = t357;
+    P_new[230] = t193;
+    P_new[231] = t213;
+    P_new[236] = t325;
+    P_new[237] = t349;
+    P_new[238] = t373;
     P_new[239] = P[217];
-    P_new[240] = t428;
+    P_new[240] = t433;
     P_new[241] = P[241];
     P_new[242] = P[242];
     P_new[243] = P[243];
@@ -802,18 +1627,14 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[250] = P[250];
     P_new[251] = P[251];
     P_new[252] = P[252];
-    P_new[253] = t184;
-    P_new[254] = t209;
-    P_new[255] = t232;
-    P_new[256] = t255;
-    P_new[257] = t278;
-    P_new[258] = t301;
-    P_new[259] = t323;
-    P_new[260] = t342;
-    P_new[261] = t358;
+    P_new[253] = t194;
+    P_new[254] = t214;
+    P_new[255] = t234;
+    P_new[260] = t350;
+    P_new[261] = t374;
     P_new[262] = P[218];
     P_new[263] = P[241];
-    P_new[264] = t429;
+    P_new[264] = t434;
     P_new[265] = P[265];
     P_new[266] = P[266];
     P_new[267] = P[267];
@@ -825,19 +1646,11 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[273] = P[273];
     P_new[274] = P[274];
     P_new[275] = P[275];
-    P_new[276] = t185;
-    P_new[277] = t210;
-    P_new[278] = t233;
-    P_new[279] = t256;
-    P_new[280] = t279;
-    P_new[281] = t302;
-    P_new[282] = t324;
-    P_new[283] = t343;
-    P_new[284] = t359;
+    P_new[284] = t375;
     P_new[285] = P[219];
     P_new[286] = P[242];
     P_new[287] = P[265];
-    P_new[288] = t430;
+    P_new[288] = t435;
     P_new[289] = P[289];
     P_new[290] = P[290];
     P_new[291] = P[291];
@@ -848,20 +1661,12 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[296] = P[296];
     P_new[297] = P[297];
     P_new[298] = P[298];
-    P_new[299] = t186;
-    P_new[300] = t211;
-    P_new[301] = t234;
-    P_new[302] = t257;
-    P_new[303] = t280;
-    P_new[304] = t303;
-    P_new[305] = t325;
-    P_new[306] = t344;
-    P_new[307] = t360;
+    P_new[299] = t196;
     P_new[308] = P[220];
     P_new[309] = P[243];
     P_new[310] = P[266];
     P_new[311] = P[289];
-    P_new[312] = t431;
+    P_new[312] = t436;
     P_new[313] = P[313];
     P_new[314] = P[314];
     P_new[315] = P[315];
@@ -871,21 +1676,17 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[319] = P[319];
     P_new[320] = P[320];
     P_new[321] = P[321];
-    P_new[322] = t187;
-    P_new[323] = t212;
-    P_new[324] = t235;
-    P_new[325] = t258;
-    P_new[326] = t281;
-    P_new[327] = t304;
-    P_new[328] = t326;
-    P_new[329] = t345;
-    P_new[330] = t361;
+    P_new[322] = t197;
+    P_new[323] = t217;
+    P_new[328] = t329;
+    P_new[329] = t353;
+    P_new[330] = t377;
     P_new[331] = P[221];
     P_new[332] = P[244];
     P_new[333] = P[267];
     P_new[334] = P[290];
     P_new[335] = P[313];
-    P_new[336] = t432;
+    P_new[336] = t437;
     P_new[337] = P[337];
     P_new[338] = P[338];
     P_new[339] = P[339];
@@ -894,22 +1695,18 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[342] = P[342];
     P_new[343] = P[343];
     P_new[344] = P[344];
-    P_new[345] = t188;
-    P_new[346] = t213;
-    P_new[347] = t236;
-    P_new[348] = t259;
-    P_new[349] = t282;
-    P_new[350] = t305;
-    P_new[351] = t327;
-    P_new[352] = t346;
-    P_new[353] = t362;
+    P_new[345] = t198;
+    P_new[346] = t218;
+    P_new[347] = t238;
+    P_new[352] = t354;
+    P_new[353] = t378;
     P_new[354] = P[222];
     P_new[355] = P[245];
     P_new[356] = P[268];
     P_new[357] = P[291];
     P_new[358] = P[314];
     P_new[359] = P[337];
-    P_new[360] = t433;
+    P_new[360] = t438;
     P_new[361] = P[361];
     P_new[362] = P[362];
     P_new[363] = P[363];
@@ -917,15 +1714,7 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[365] = P[365];
     P_new[366] = P[366];
     P_new[367] = P[367];
-    P_new[368] = t189;
-    P_new[369] = t214;
-    P_new[370] = t237;
-    P_new[371] = t260;
-    P_new[372] = t283;
-    P_new[373] = t306;
-    P_new[374] = t328;
-    P_new[375] = t347;
-    P_new[376] = t363;
+    P_new[376] = t379;
     P_new[377] = P[223];
     P_new[378] = P[246];
     P_new[379] = P[269];
@@ -933,22 +1722,14 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[381] = P[315];
     P_new[382] = P[338];
     P_new[383] = P[361];
-    P_new[384] = t434;
+    P_new[384] = t439;
     P_new[385] = P[385];
     P_new[386] = P[386];
     P_new[387] = P[387];
     P_new[388] = P[388];
     P_new[389] = P[389];
     P_new[390] = P[390];
-    P_new[391] = t190;
-    P_new[392] = t215;
-    P_new[393] = t238;
-    P_new[394] = t261;
-    P_new[395] = t284;
-    P_new[396] = t307;
-    P_new[397] = t329;
-    P_new[398] = t348;
-    P_new[399] = t364;
+    P_new[391] = t200;
     P_new[400] = P[224];
     P_new[401] = P[247];
     P_new[402] = P[270];
@@ -957,21 +1738,17 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[405] = P[339];
     P_new[406] = P[362];
     P_new[407] = P[385];
-    P_new[408] = t435;
+    P_new[408] = t440;
     P_new[409] = P[409];
     P_new[410] = P[410];
     P_new[411] = P[411];
     P_new[412] = P[412];
     P_new[413] = P[413];
-    P_new[414] = t191;
-    P_new[415] = t216;
-    P_new[416] = t239;
-    P_new[417] = t262;
-    P_new[418] = t285;
-    P_new[419] = t308;
-    P_new[420] = t330;
-    P_new[421] = t349;
-    P_new[422] = t365;
+    P_new[414] = t201;
+    P_new[415] = t221;
+    P_new[420] = t333;
+    P_new[421] = t357;
+    P_new[422] = t381;
     P_new[423] = P[225];
     P_new[424] = P[248];
     P_new[425] = P[271];
@@ -981,20 +1758,16 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[429] = P[363];
     P_new[430] = P[386];
     P_new[431] = P[409];
-    P_new[432] = t436;
+    P_new[432] = t441;
     P_new[433] = P[433];
     P_new[434] = P[434];
     P_new[435] = P[435];
     P_new[436] = P[436];
-    P_new[437] = t192;
-    P_new[438] = t217;
-    P_new[439] = t240;
-    P_new[440] = t263;
-    P_new[441] = t286;
-    P_new[442] = t309;
-    P_new[443] = t331;
-    P_new[444] = t350;
-    P_new[445] = t366;
+    P_new[437] = t202;
+    P_new[438] = t222;
+    P_new[439] = t242;
+    P_new[444] = t358;
+    P_new[445] = t382;
     P_new[446] = P[226];
     P_new[447] = P[249];
     P_new[448] = P[272];
@@ -1005,19 +1778,11 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[453] = P[387];
     P_new[454] = P[410];
     P_new[455] = P[433];
-    P_new[456] = t437;
+    P_new[456] = t442;
     P_new[457] = P[457];
     P_new[458] = P[458];
     P_new[459] = P[459];
-    P_new[460] = t193;
-    P_new[461] = t218;
-    P_new[462] = t241;
-    P_new[463] = t264;
-    P_new[464] = t287;
-    P_new[465] = t310;
-    P_new[466] = t332;
-    P_new[467] = t351;
-    P_new[468] = t367;
+    P_new[468] = t384;
     P_new[469] = P[227];
     P_new[470] = P[250];
     P_new[471] = P[273];
@@ -1029,18 +1794,10 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[477] = P[411];
     P_new[478] = P[434];
     P_new[479] = P[457];
-    P_new[480] = t438;
+    P_new[480] = t443;
     P_new[481] = P[481];
     P_new[482] = P[482];
-    P_new[483] = t194;
-    P_new[484] = t219;
-    P_new[485] = t242;
-    P_new[486] = t265;
-    P_new[487] = t288;
-    P_new[488] = t311;
-    P_new[489] = t333;
-    P_new[490] = t352;
-    P_new[491] = t368;
+    P_new[483] = t205;
     P_new[492] = P[228];
     P_new[493] = P[251];
     P_new[494] = P[274];
@@ -1053,17 +1810,13 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[501] = P[435];
     P_new[502] = P[458];
     P_new[503] = P[481];
-    P_new[504] = t439;
+    P_new[504] = t444;
     P_new[505] = P[505];
-    P_new[506] = t195;
-    P_new[507] = t220;
-    P_new[508] = t243;
-    P_new[509] = t266;
-    P_new[510] = t289;
-    P_new[511] = t312;
-    P_new[512] = t334;
-    P_new[513] = t353;
-    P_new[514] = t369;
+    P_new[506] = t206;
+    P_new[507] = t226;
+    P_new[512] = t338;
+    P_new[513] = t362;
+    P_new[514] = t386;
     P_new[515] = P[229];
     P_new[516] = P[252];
     P_new[517] = P[275];
@@ -1077,7 +1830,264 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[525] = P[459];
     P_new[526] = P[482];
     P_new[527] = P[505];
-    P_new[528] = t440;
+    P_new[528] = t445;
+    #else
+    x_new[0] = t171;
+    x_new[1] = t172;
+    x_new[2] = t173;
+    x_new[3] = t174;
+    x_new[4] = t97;
+    x_new[5] = t98;
+    x_new[6] = t99;
+    x_new[7] = t100;
+    x_new[8] = t101;
+    x_new[9] = t102;
+    x_new[10] = x[10];
+    x_new[11] = x[11];
+    x_new[12] = x[12];
+    x_new[13] = x[13];
+    x_new[14] = x[14];
+    x_new[15] = x[15];
+    x_new[16] = x[16];
+    x_new[17] = x[17];
+    x_new[18] = x[18];
+    x_new[19] = x[19];
+    x_new[20] = x[20];
+    x_new[21] = x[21];
+    x_new[22] = x[22];
+    x_new[23] = x[23];
+    P_new[8] = t395;
+    P_new[24] = t396;
+    P_new[25] = t397;
+    P_new[26] = t398;
+    P_new[31] = t403;
+    P_new[47] = t397;
+    P_new[48] = t404;
+    P_new[49] = t405;
+    P_new[54] = t410;
+    P_new[70] = t398;
+    P_new[71] = t405;
+    P_new[72] = t411;
+    P_new[77] = t416;
+    P_new[100] = t421;
+    P_new[120] = t422;
+    P_new[121] = t423;
+    P_new[122] = t424;
+    P_new[123] = t425;
+    P_new[143] = t423;
+    P_new[144] = t426;
+    P_new[145] = t427;
+    P_new[146] = t428;
+    P_new[166] = t424;
+    P_new[167] = t427;
+    P_new[168] = t429;
+    P_new[169] = t430;
+    P_new[184] = t395;
+    P_new[185] = t403;
+    P_new[186] = t410;
+    P_new[187] = t416;
+    P_new[188] = t421;
+    P_new[189] = t425;
+    P_new[190] = t428;
+    P_new[191] = t430;
+    P_new[192] = t431;
+    P_new[216] = t432;
+    P_new[217] = P[217];
+    P_new[218] = P[218];
+    P_new[219] = P[219];
+    P_new[220] = P[220];
+    P_new[221] = P[221];
+    P_new[222] = P[222];
+    P_new[223] = P[223];
+    P_new[224] = P[224];
+    P_new[225] = P[225];
+    P_new[226] = P[226];
+    P_new[227] = P[227];
+    P_new[228] = P[228];
+    P_new[229] = P[229];
+    P_new[239] = P[217];
+    P_new[240] = t433;
+    P_new[241] = P[241];
+    P_new[242] = P[242];
+    P_new[243] = P[243];
+    P_new[244] = P[244];
+    P_new[245] = P[245];
+    P_new[246] = P[246];
+    P_new[247] = P[247];
+    P_new[248] = P[248];
+    P_new[249] = P[249];
+    P_new[250] = P[250];
+    P_new[251] = P[251];
+    P_new[252] = P[252];
+    P_new[262] = P[218];
+    P_new[263] = P[241];
+    P_new[264] = t434;
+    P_new[265] = P[265];
+    P_new[266] = P[266];
+    P_new[267] = P[267];
+    P_new[268] = P[268];
+    P_new[269] = P[269];
+    P_new[270] = P[270];
+    P_new[271] = P[271];
+    P_new[272] = P[272];
+    P_new[273] = P[273];
+    P_new[274] = P[274];
+    P_new[275] = P[275];
+    P_new[285] = P[219];
+    P_new[286] = P[242];
+    P_new[287] = P[265];
+    P_new[288] = t435;
+    P_new[289] = P[289];
+    P_new[290] = P[290];
+    P_new[291] = P[291];
+    P_new[292] = P[292];
+    P_new[293] = P[293];
+    P_new[294] = P[294];
+    P_new[295] = P[295];
+    P_new[296] = P[296];
+    P_new[297] = P[297];
+    P_new[298] = P[298];
+    P_new[308] = P[220];
+    P_new[309] = P[243];
+    P_new[310] = P[266];
+    P_new[311] = P[289];
+    P_new[312] = t436;
+    P_new[313] = P[313];
+    P_new[314] = P[314];
+    P_new[315] = P[315];
+    P_new[316] = P[316];
+    P_new[317] = P[317];
+    P_new[318] = P[318];
+    P_new[319] = P[319];
+    P_new[320] = P[320];
+    P_new[321] = P[321];
+    P_new[331] = P[221];
+    P_new[332] = P[244];
+    P_new[333] = P[267];
+    P_new[334] = P[290];
+    P_new[335] = P[313];
+    P_new[336] = t437;
+    P_new[337] = P[337];
+    P_new[338] = P[338];
+    P_new[339] = P[339];
+    P_new[340] = P[340];
+    P_new[341] = P[341];
+    P_new[342] = P[342];
+    P_new[343] = P[343];
+    P_new[344] = P[344];
+    P_new[354] = P[222];
+    P_new[355] = P[245];
+    P_new[356] = P[268];
+    P_new[357] = P[291];
+    P_new[358] = P[314];
+    P_new[359] = P[337];
+    P_new[360] = t438;
+    P_new[361] = P[361];
+    P_new[362] = P[362];
+    P_new[363] = P[363];
+    P_new[364] = P[364];
+    P_new[365] = P[365];
+    P_new[366] = P[366];
+    P_new[367] = P[367];
+    P_new[377] = P[223];
+    P_new[378] = P[246];
+    P_new[379] = P[269];
+    P_new[380] = P[292];
+    P_new[381] = P[315];
+    P_new[382] = P[338];
+    P_new[383] = P[361];
+    P_new[384] = t439;
+    P_new[385] = P[385];
+    P_new[386] = P[386];
+    P_new[387] = P[387];
+    P_new[388] = P[388];
+    P_new[389] = P[389];
+    P_new[390] = P[390];
+    P_new[400] = P[224];
+    P_new[401] = P[247];
+    P_new[402] = P[270];
+    P_new[403] = P[293];
+    P_new[404] = P[316];
+    P_new[405] = P[339];
+    P_new[406] = P[362];
+    P_new[407] = P[385];
+    P_new[408] = t440;
+    P_new[409] = P[409];
+    P_new[410] = P[410];
+    P_new[411] = P[411];
+    P_new[412] = P[412];
+    P_new[413] = P[413];
+    P_new[423] = P[225];
+    P_new[424] = P[248];
+    P_new[425] = P[271];
+    P_new[426] = P[294];
+    P_new[427] = P[317];
+    P_new[428] = P[340];
+    P_new[429] = P[363];
+    P_new[430] = P[386];
+    P_new[431] = P[409];
+    P_new[432] = t441;
+    P_new[433] = P[433];
+    P_new[434] = P[434];
+    P_new[435] = P[435];
+    P_new[436] = P[436];
+    P_new[446] = P[226];
+    P_new[447] = P[249];
+    P_new[448] = P[272];
+    P_new[449] = P[295];
+    P_new[450] = P[318];
+    P_new[451] = P[341];
+    P_new[452] = P[364];
+    P_new[453] = P[387];
+    P_new[454] = P[410];
+    P_new[455] = P[433];
+    P_new[456] = t442;
+    P_new[457] = P[457];
+    P_new[458] = P[458];
+    P_new[459] = P[459];
+    P_new[469] = P[227];
+    P_new[470] = P[250];
+    P_new[471] = P[273];
+    P_new[472] = P[296];
+    P_new[473] = P[319];
+    P_new[474] = P[342];
+    P_new[475] = P[365];
+    P_new[476] = P[388];
+    P_new[477] = P[411];
+    P_new[478] = P[434];
+    P_new[479] = P[457];
+    P_new[480] = t443;
+    P_new[481] = P[481];
+    P_new[482] = P[482];
+    P_new[492] = P[228];
+    P_new[493] = P[251];
+    P_new[494] = P[274];
+    P_new[495] = P[297];
+    P_new[496] = P[320];
+    P_new[497] = P[343];
+    P_new[498] = P[366];
+    P_new[499] = P[389];
+    P_new[500] = P[412];
+    P_new[501] = P[435];
+    P_new[502] = P[458];
+    P_new[503] = P[481];
+    P_new[504] = t444;
+    P_new[505] = P[505];
+    P_new[515] = P[229];
+    P_new[516] = P[252];
+    P_new[517] = P[275];
+    P_new[518] = P[298];
+    P_new[519] = P[321];
+    P_new[520] = P[344];
+    P_new[521] = P[367];
+    P_new[522] = P[390];
+    P_new[523] = P[413];
+    P_new[524] = P[436];
+    P_new[525] = P[459];
+    P_new[526] = P[482];
+    P_new[527] = P[505];
+    P_new[528] = t445;
+    #endif
     return 0;
 }
 
@@ -7140,7 +8150,7 @@ int ins_fc24_eskf_eskf_run(size_t steps, const double *z_gnss, const double *z_b
         x[i] = x0[i];
     }
     for (i = 0; i < 529; ++i) {
-        P[i] = P0[i];
+        P[i] = i / 23 <= i % 23 ? P0[i] : P0[(i % 23) * 23 + i / 23];
     }
     for (k = 0; k < steps; ++k) {
         const double *uk = u + k * 6;

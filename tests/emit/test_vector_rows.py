@@ -4,10 +4,11 @@ printed in C as GCC/Clang vector statements with their scalar lanes as the fallb
 
 Checked: the vector form against the scalar form of the same model (random models with
 inputs in f, sparse and dense Jacobians, unit and dense rows of H, diagonal and correlated
-R, lengths that leave a shorter last chunk), against the NumPy reference over a run, the
-vector branch bitwise against its scalar lanes (plain, fused and -DDERIVE_VECTOR=0 builds),
-P_new exactly symmetric, P0 read by its upper triangle only, gating, the counts (header =
-Python's executed count = the C text's vector branch, lane by lane), and the refusals."""
+R, lengths that 4 does not divide: an overlapping last chunk), against the NumPy reference
+over a run, the vector branch bitwise against its scalar lanes (plain, fused and
+-DDERIVE_VECTOR=0 builds), P_new exactly symmetric, P0 read by its upper triangle only,
+gating, the counts (header = Python's executed count = the C text's vector branch, lane by
+lane), and the refusals."""
 
 import re
 import shutil
@@ -32,7 +33,7 @@ from derive.modelfile import loads_model
 from derive.pipeline import load_generated
 from derive.program import Port, Program
 from derive.row_program import RowBuilder
-from derive.rows import LaneSum
+from derive.rows import VECTOR_LANES, LaneSum, chunk_bounds
 from derive.statements import Temporary
 
 VECTOR, SCALAR = {"rows": "vector"}, {"rows": "scalar"}
@@ -154,8 +155,8 @@ def test_unit_rows_of_either_sign_and_a_state_measured_twice():
 def test_the_vector_branch_computes_its_scalar_lanes_bit_for_bit(cflags, tmp_path):
     """The same file built with DERIVE_VECTOR 1 and 0: identical bits, P_new exactly
     symmetric (the lower triangle written by transposition), on the catalog's INS/GNSS EKF
-    (which declares rows = vector) and a random model whose length leaves a shorter last
-    chunk."""
+    (which declares rows = vector) and a random model whose length 4 does not divide (its
+    last chunk overlaps the one before)."""
     rng = np.random.default_rng(7)
     dt = (np.array([0.01]),)
     cases = [("ins_gnss", {}, 16, 6, "update_gnss", 6, dt),
@@ -369,3 +370,18 @@ def test_a_negative_dt_is_refused_by_the_vector_predict_naming_step_and_value():
                            else r"parameter dt must be nonnegative, got -0\.25"):
             module.run(gnss, baro, us, x, P, rows)
 
+
+
+@pytest.mark.parametrize("length", [0, 3, 4, 15, 23, 24])
+def test_chunks_cover_the_row_with_a_last_one_that_overlaps(length):
+    """Every chunk is 4 lanes wide (a row shorter than that: one chunk), they cover the row,
+    and only the last overlaps the one before it, ending at the row's end."""
+    bounds = chunk_bounds(length, VECTOR_LANES)
+    covered = sorted({lane for start, stop in bounds for lane in range(start, stop)})
+    assert covered == list(range(length))
+    if length >= VECTOR_LANES:
+        assert all(stop - start == VECTOR_LANES for start, stop in bounds)
+        assert bounds[-1][1] == length
+        assert all(a[1] == b[0] for a, b in zip(bounds[:-2], bounds[1:-1]))
+    else:
+        assert bounds == ([(0, length)] if length else [])

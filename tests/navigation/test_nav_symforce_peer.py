@@ -16,9 +16,10 @@ import pytest
 from derive import catalog
 from derive.apps.bench.bars import BARS
 from derive.apps.bench.peers import symforce_peer as sp
-from derive.apps.bench.peers.navigation import NavigationResult
+from derive.apps.bench.peers.navigation import NavigationResult, error_state_point
 from derive.apps.bench.run import Bar, BenchResult, Settings
 from derive.apps.ins import symforce_ekf
+from derive.build import load_python
 from derive.generation import generate_units
 from derive.interface import read as read_interface
 from derive.model import NonlinearModel, Sensor
@@ -43,6 +44,20 @@ def test_program_lines_are_parsed_by_kind():
     assert x.tolist() == [0, 1] and P.tolist() == [[2, 3], [4, 5]]
     with pytest.raises(ValueError):
         sp.split_output(np.arange(5.0), 2)
+    x, P = sp.split_output(np.arange(7.0), 3, 2)  # an error state: P over 2 tangent rows
+    assert x.tolist() == [0, 1, 2] and P.tolist() == [[3, 4], [5, 6]]
+
+
+def test_error_state_point_is_the_generated_predicts_input_and_reference():
+    """The peer's ins_eskf predict point: its expected (x, P) is what the generated predict
+    (vector rows over the 15 tangent rows) returns there, 1e-13 (the peer's agreement
+    measure), and x is of storage size, P tangent-sized."""
+    point, expected = error_state_point("ins_eskf")
+    assert point.x.shape == (16,) and point.P.shape == (15, 15)
+    module = load_python(ROOT / "generated" / "ins_eskf" / "eskf.py")
+    x_new, P_new = (np.asarray(v, dtype=float) for v in
+                    module.predict(point.x, point.P, point.args["predict"], [point.dt]))
+    assert sp.agreement((x_new, P_new.reshape(15, 15)), expected["predict"]) <= 1e-13
 
 
 def test_agreement_is_relative_to_x_and_to_the_standard_deviations():

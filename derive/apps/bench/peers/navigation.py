@@ -42,12 +42,15 @@ import numpy as np
 
 from .... import catalog
 from ....build import STRICT_CFLAGS
+from ....filters.eskf import reference_predict
 from ....filters.sensors import program_name
 from ....flops import c_function_body
 from ....generation import generate_units
 from ....interface import read as read_interface
+from ....options import validate
 from ....trees import OpCount
 from ...ins import c_loop, casadi_ekf, fc24, filterpy_ekf, flight, reference, symforce_ekf
+from ...verify import sensors_case
 from .. import generated
 from ..bars import BARS
 from ..cases import Skip
@@ -338,7 +341,30 @@ def peer_points() -> dict:
     x, P, args, dt = fc24.operating_point()
     out[fc24.MODEL] = (symforce_peer.Point(x, P, args, dt),
                        {name: fc24.expected(x, P, name, arg, dt) for name, arg in args.items()})
+    for name in ERROR_STATE:
+        out[name] = error_state_point(name)
     return out
+
+
+ERROR_STATE = ("ins_eskf", "ins_fc24_eskf")
+"""The error-state models whose predict the SymForce peer times against its Rot3 version."""
+
+ERROR_STATE_STEP = 500
+"""The step of `derive verify`'s run of an error-state model whose x, P and u the peer's
+predict is called with."""
+
+
+def error_state_point(model_name: str):
+    """(Point, {"predict": (x, P) of the error-state reference}) of ``model_name`` at step
+    ERROR_STATE_STEP of `derive verify`'s simulated run (derive.apps.verify.sensors_case)."""
+    model = catalog.load(model_name)
+    case = sensors_case(model, "eskf", ERROR_STATE_STEP + 100, 7, validate("eskf", {}),
+                        float_c=False)
+    step = case.trace[ERROR_STATE_STEP]
+    u = step.u[[model.inputs.index(s) for s in model.f_inputs]]
+    expected = reference_predict(model)(step.x_before, step.P_before, step.u, step.p)
+    return (symforce_peer.Point(step.x_before, step.P_before, {"predict": u}, float(step.p[0])),
+            {"predict": expected})
 
 
 def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,

@@ -1,7 +1,11 @@
 """SymForce's generated C++ as a timed peer of derive's generated C, for the navigation EKFs
 (``ins_gnss`` and ``ins_fc24``): the same functions (predict and each sensor's update) from
 the same equations (derive.apps.ins.symforce_ekf), compiled by the same GCC, checked against
-each other and the NumPy references, timed in one process.
+each other and the NumPy references, timed in one process; and for their error-state
+versions (``ins_eskf``, ``ins_fc24_eskf``, filter ``eskf``) the predict against SymForce's
+with the attitude a ``sf.Rot3`` and its tangent-space Jacobians
+(derive.apps.ins.symforce_eskf; :data:`ROT3`, the part of sym::Rot3 it uses, and
+:data:`_ESKF_WRAPPER`, which moves the quaternion between derive's rows and the Rot3).
 
 - Builds: double ``-O2``, float ``-O2``, double ``-O2 -march=native`` and float ``-O2
   -march=native``. derive's C is generated in the build's precision; SymForce's function
@@ -58,13 +62,14 @@ from .... import catalog
 from ....build import cache_dir
 from ....filters.sensors import program_name
 from ....generation import generate_units
+from ....manifolds import QUATERNION
 from ....trees import OpCount
-from ...ins import symforce_ekf
+from ...ins import symforce_ekf, symforce_eskf
 from ...targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
 from ..bars import BARS
 from ..timing import columns, human
 
-MODELS = ("ins_gnss", "ins_fc24")
+MODELS = ("ins_gnss", "ins_fc24", "ins_eskf", "ins_fc24_eskf")
 FLOPS_BAR = BARS["symforce_flops_share"]
 TIME_BARS = {"double -O2": BARS["symforce_time_double_O2"],
              "float -O2": BARS["symforce_time_float_O2"],
@@ -95,8 +100,27 @@ struct Matrix {
   alignas(16) Scalar m[Rows * Cols];
   Scalar& operator()(long i, long j) { return m[i + j * Rows]; }
   const Scalar& operator()(long i, long j) const { return m[i + j * Rows]; }
+  Scalar& operator[](long i) { return m[i]; }
+  const Scalar& operator[](long i) const { return m[i]; }
 };
 }  // namespace Eigen
+"""
+
+ROT3 = """\
+// The part of sym::Rot3 that SymForce's generated functions use: its four stored numbers
+// (x, y, z, w), what the generated code reads (Data()) and writes (the constructor).
+#pragma once
+#include <Eigen/Core>
+namespace sym {
+template <typename Scalar> class Rot3 {
+ public:
+  Rot3() {}
+  explicit Rot3(const Eigen::Matrix<Scalar, 4, 1>& d) : data_(d) {}
+  const Eigen::Matrix<Scalar, 4, 1>& Data() const { return data_; }
+ private:
+  Eigen::Matrix<Scalar, 4, 1> data_;
+};
+}  // namespace sym
 """
 
 COUNTED = """\
@@ -177,6 +201,35 @@ extern "C" int sf_{model}_{function}(const real* x, const real* P, const real* a
 }}
 """
 
+_ESKF_WRAPPER = """\
+#ifdef COUNTING
+#include "counted.h"
+#include "{counting_header}"
+#else
+#include "{header}"
+#endif
+typedef REAL real;
+extern "C" int sf_{model}_{function}(const real* x, const real* P, const real* u,
+                                    real* x_new, real* P_new, const real* p) {{
+  Eigen::Matrix<real, 4, 1> q;
+  q[0] = x[{q1}]; q[1] = x[{q2}]; q[2] = x[{q3}]; q[3] = x[{q0}];
+  Eigen::Matrix<real, {n_rest}, 1> rest, rest_new;
+  static const int REST[{n_rest}] = {{{rest}}};
+  for (int i = 0; i < {n_rest}; ++i) rest[i] = x[REST[i]];
+  sym::Rot3<real> R(q), R_new;
+  sym::{cpp_name}<real>(R, rest, *reinterpret_cast<const Eigen::Matrix<real, {nt}, {nt}>*>(P),
+      *reinterpret_cast<const Eigen::Matrix<real, {m}, 1>*>(u), p[0], &R_new, &rest_new,
+      reinterpret_cast<Eigen::Matrix<real, {nt}, {nt}>*>(P_new));
+  const Eigen::Matrix<real, 4, 1>& d = R_new.Data();
+  x_new[{q0}] = d[3]; x_new[{q1}] = d[0]; x_new[{q2}] = d[1]; x_new[{q3}] = d[2];
+  for (int i = 0; i < {n_rest}; ++i) x_new[REST[i]] = rest_new[i];
+  return 0;
+}}
+"""
+"""The wrapper of SymForce's error-state predict (derive.apps.ins.symforce_eskf): the
+quaternion moved between derive's (w, x, y, z) rows of x and a Rot3's (x, y, z, w), the
+other states gathered into and scattered from their own vector (a copy of 20 numbers)."""
+
 _MAIN = """\
 #include <ctime>
 #include <cstdio>
@@ -186,18 +239,19 @@ _MAIN = """\
 typedef REAL real;
 typedef int (*Call)(const real*, const real*, const real*, real*, real*, const real*);
 {declarations}
-struct Fn {{ const char* model; const char* name; Call derive; Call peer; int n; int m; }};
+struct Fn {{ const char* model; const char* name; Call derive; Call peer; int n; int nt;
+            int m; }};
 static const Fn FNS[] = {{
 {table}
 }};
 static const int COUNT = {count};
 {data}
-alignas(64) static real X[{n_max}], P[{n_max} * {n_max}], ARG[16], PAR[1];
-alignas(64) static real X_NEW[{n_max}], P_NEW[{n_max} * {n_max}];
+alignas(64) static real X[{n_max}], P[{nt_max} * {nt_max}], ARG[16], PAR[1];
+alignas(64) static real X_NEW[{n_max}], P_NEW[{nt_max} * {nt_max}];
 {tally}
 static void load(int f) {{
   for (int i = 0; i < FNS[f].n; ++i) X[i] = (real)DATA_X[f][i];
-  for (int i = 0; i < FNS[f].n * FNS[f].n; ++i) P[i] = (real)DATA_P[f][i];
+  for (int i = 0; i < FNS[f].nt * FNS[f].nt; ++i) P[i] = (real)DATA_P[f][i];
   for (int i = 0; i < FNS[f].m; ++i) ARG[i] = (real)DATA_ARG[f][i];
   PAR[0] = (real)DATA_DT[f];
 }}
@@ -212,12 +266,12 @@ static double seconds(Call call, long calls) {{
   return now() - start;
 }}
 static void print_out(int f, const char* impl, int status, bool column_major) {{
-  int n = FNS[f].n;
+  int n = FNS[f].n, nt = FNS[f].nt;
   std::printf("out %s %s %s %d", FNS[f].model, FNS[f].name, impl, status);
   for (int i = 0; i < n; ++i) std::printf(" %.17g", (double)X_NEW[i]);
-  for (int i = 0; i < n; ++i)
-    for (int j = 0; j < n; ++j)
-      std::printf(" %.17g", (double)(column_major ? P_NEW[j * n + i] : P_NEW[i * n + j]));
+  for (int i = 0; i < nt; ++i)
+    for (int j = 0; j < nt; ++j)
+      std::printf(" %.17g", (double)(column_major ? P_NEW[j * nt + i] : P_NEW[i * nt + j]));
   std::printf("\\n");
 }}
 int main(int argc, char** argv) {{
@@ -494,11 +548,14 @@ def parse_lines(text: str) -> dict:
     return out
 
 
-def split_output(values: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """x_new (n) and P_new (n x n, row-major) of one ``out`` line's values."""
-    if len(values) != n + n * n:
-        raise ValueError(f"an output line has {len(values)} values, not {n + n * n}")
-    return values[:n], values[n:].reshape(n, n)
+def split_output(values: np.ndarray, n: int, nt: int | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """x_new (n) and P_new (nt x nt, row-major; nt: n unless given) of one ``out`` line's
+    values."""
+    nt = n if nt is None else nt
+    if len(values) != n + nt * nt:
+        raise ValueError(f"an output line has {len(values)} values, not {n + nt * nt}")
+    return values[:n], values[n:].reshape(nt, nt)
 
 
 def agreement(got: tuple[np.ndarray, np.ndarray], expected: tuple[np.ndarray, np.ndarray]
@@ -561,6 +618,8 @@ def folded_constants(source: str) -> str:
 class _Model:
     name: str
     n: int
+    nt: int                          # P's rows: n, or the tangent space's (error state)
+    quaternion: tuple[int, ...]      # error state: the rows of x of the Rot3 (w, x, y, z)
     functions: tuple[str, ...]
     arg_sizes: dict[str, int]
     prefix: str                      # derive's C function prefix, e.g. ins_fc24_ekf
@@ -571,11 +630,11 @@ class _Model:
     expected: dict[str, tuple[np.ndarray, np.ndarray]]
 
 
-def _derive_sources(model: str, workdir: Path, result: PeerResult):
+def _derive_sources(model: str, workdir: Path, result: PeerResult, filter_name: str = "ekf"):
     paths = {}
     for precision in ("double", "float"):
         start, cpu = time.perf_counter(), time.process_time()
-        written, _ = generate_units(model, ["ekf"], "c", workdir / precision,
+        written, _ = generate_units(model, [filter_name], "c", workdir / precision,
                                     {"precision": precision})
         if precision == "double":
             result.derive_seconds[model] = (time.perf_counter() - start,
@@ -588,14 +647,21 @@ def _derive_sources(model: str, workdir: Path, result: PeerResult):
 def _prepare(model_name: str, point: Point, expected, workdir: Path, result: PeerResult
              ) -> _Model:
     model = catalog.load(model_name)
-    functions = symforce_ekf.function_names(model)
-    sources, headers = _derive_sources(model_name, workdir / model_name, result)
-    symforce = symforce_ekf.generate(functions, model_name)
+    quaternion: tuple[int, ...] = ()
+    if model.manifolds:  # the error-state predict (SymForce: its Rot3 tangent Jacobians)
+        (rot,) = [m for m in model.manifolds if m.kind == QUATERNION]
+        quaternion = tuple(model.states.index(s) for s in rot.states)
+        functions, filter_name = ("predict",), "eskf"
+        symforce = {"predict": symforce_eskf.generate(model_name)}
+    else:
+        functions, filter_name = symforce_ekf.function_names(model), "ekf"
+        symforce = symforce_ekf.generate(functions, model_name)
+    sources, headers = _derive_sources(model_name, workdir / model_name, result, filter_name)
     result.symforce_seconds[model_name] = sum(f.seconds for f in symforce.values())
     result.symforce[model_name] = symforce
     sizes = {name: len(point.args[name]) for name in functions}
-    return _Model(model_name, model.n, functions, sizes, f"{model_name}_ekf", sources,
-                  headers, symforce, point, expected)
+    return _Model(model_name, model.n, model.n_tangent, quaternion, functions, sizes,
+                  f"{model_name}_{filter_name}", sources, headers, symforce, point, expected)
 
 
 def _write_symforce(models: list[_Model], folder: Path) -> list[tuple[str, str, Path]]:
@@ -604,6 +670,9 @@ def _write_symforce(models: list[_Model], folder: Path) -> list[tuple[str, str, 
     (folder / "Eigen").mkdir(parents=True, exist_ok=True)
     (folder / "Eigen" / "Core").write_text(EIGEN_SHIM, encoding="utf-8")
     (folder / "counted.h").write_text(COUNTED, encoding="utf-8")
+    if any(m.quaternion for m in models):
+        (folder / "sym").mkdir(exist_ok=True)
+        (folder / "sym" / "rot3.h").write_text(ROT3, encoding="utf-8")
     out = []
     for m in models:
         for function in m.functions:
@@ -613,10 +682,18 @@ def _write_symforce(models: list[_Model], folder: Path) -> list[tuple[str, str, 
             counting = folder / f"sf_{m.name}_{function}_counting.h"
             counting.write_text(folded_constants(sf.source), encoding="utf-8")
             wrapper = folder / f"sf_{m.name}_{function}.cpp"
-            wrapper.write_text(_WRAPPER.format(
-                header=header.name, counting_header=counting.name, model=m.name,
-                function=function, cpp_name=sf.cpp_name, n=m.n, m=m.arg_sizes[function],
-                dt=" p[0]," if function == "predict" else ""), encoding="utf-8")
+            common = dict(header=header.name, counting_header=counting.name, model=m.name,
+                          function=function, cpp_name=sf.cpp_name, m=m.arg_sizes[function])
+            if m.quaternion:
+                q = m.quaternion
+                rest = [i for i in range(m.n) if i not in q]
+                text = _ESKF_WRAPPER.format(**common, nt=m.nt, q0=q[0], q1=q[1], q2=q[2],
+                                            q3=q[3], n_rest=len(rest),
+                                            rest=", ".join(map(str, rest)))
+            else:
+                text = _WRAPPER.format(**common, n=m.n,
+                                       dt=" p[0]," if function == "predict" else "")
+            wrapper.write_text(text, encoding="utf-8")
             out.append((m.name, function, wrapper))
     return out
 
@@ -629,21 +706,22 @@ def _main_source(models: list[_Model], headers: list[str], counting: bool) -> st
             declarations.append(f'extern "C" int {name}(const real*, const real*, '
                                 f"const real*, real*, real*, const real*);")
             rows.append(f'  {{"{m.name}", "{function}", {m.prefix}_{function}, {name}, {m.n}, '
-                        f"{m.arg_sizes[function]}}},")
+                        f"{m.nt}, {m.arg_sizes[function]}}},")
             p = m.point
             data_x.append(_literal(p.x))
             data_p.append(_literal(p.P.ravel()))
             data_arg.append(_literal(p.args[function]))
             data_dt.append(repr(float(p.dt)))
-    n_max = max(m.n for m in models)
+    n_max, nt_max = max(m.n for m in models), max(m.nt for m in models)
     data = (f"static const double DATA_X[][{n_max}] = {{{', '.join(data_x)}}};\n"
-            f"static const double DATA_P[][{n_max * n_max}] = {{{', '.join(data_p)}}};\n"
+            f"static const double DATA_P[][{nt_max * nt_max}] = {{{', '.join(data_p)}}};\n"
             f"static const double DATA_ARG[][16] = {{{', '.join(data_arg)}}};\n"
             f"static const double DATA_DT[] = {{{', '.join(data_dt)}}};\n")
     return _MAIN.format(
         headers="".join(f'#include "{h}"\n' for h in headers),
         declarations="\n".join(declarations), table="\n".join(rows), count=len(rows),
-        count_max=len(rows), data=data, n_max=n_max, tally=_TALLY if counting else "",
+        count_max=len(rows), data=data, n_max=n_max, nt_max=nt_max,
+        tally=_TALLY if counting else "",
         reset="tally = Tally(); " if counting else "",
         show_derive='show("derive", f); ' if counting else "",
         show_peer='show("symforce", f); ' if counting else "")
@@ -784,7 +862,7 @@ def run_peer(points: dict[str, tuple[Point, dict]], workdir: Path, calls: int, r
                                floor=unit_row_floor(catalog.load(m.name), function))
             result.functions.append(r)
             by_key[(m.name, function)] = r
-    sizes_of = {m.name: m.n for m in models}
+    sizes_of = {m.name: (m.n, m.nt) for m in models}
     tick("SymForce peer: the counting build")
     program, _, _ = _build(models, wrappers, workdir / "counting", "double", (), counting=True)
     parsed = parse_lines(_run([str(program), "out"]))
@@ -797,10 +875,10 @@ def run_peer(points: dict[str, tuple[Point, dict]], workdir: Path, calls: int, r
                                                        flags)
         parsed = parse_lines(_run([str(program), "out"]))
         for (model, function), r in by_key.items():
-            n = sizes_of[model]
+            n, nt = sizes_of[model]
             d_status, d_values = parsed["out"][(model, function, "derive")]
             s_status, s_values = parsed["out"][(model, function, "symforce")]
-            got_d, got_s = split_output(d_values, n), split_output(s_values, n)
+            got_d, got_s = split_output(d_values, n, nt), split_output(s_values, n, nt)
             ref = next(m.expected[function] for m in models if m.name == model)
             if d_status:
                 result.notes.append(f"{r.label} ({name}): derive's function returned status "
