@@ -26,6 +26,7 @@ APPLICATIONS: dict[str, tuple[str, ...]] = {
     "derive.expressions": ("parse_expression",),
     "derive.filters": ("available", "derive_unit", "kind"),
     "derive.filters.difference": ("difference_form",),
+    "derive.filters.eskf": ("reference_predict",),
     "derive.filters.fir": ("order",),
     "derive.filters.kf": ("prior",),
     "derive.filters.nonlinear": (),
