@@ -17,7 +17,7 @@ import numpy as np
 from derive.errors import NumericalError, PatternError
 from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram, lower_program
 from derive.program import PARAMETER_PORT
-from derive.trees import Const, Op, Tree, Var
+from derive.trees import Const, Op, Tree, Var, tree_vars
 
 #: Precedence: higher binds tighter.
 _PREC = {"add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3}
@@ -316,9 +316,11 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     params = signature_parameters(lowered)
     body: list[str] = square_input_lines(lowered) + pattern_check_lines(lowered)
     presence = [st for st in lowered.body if isinstance(st, LoweredCheck) and st.is_presence]
+    unread = unread_temporaries(lowered)
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
-            body.append(f"{st.target} = {printer.expression(st.tree)}")
+            target = f"_{st.target}" if st.target in unread else st.target
+            body.append(f"{target} = {printer.expression(st.tree)}")
         elif st.is_presence:  # a program's share one status: one call, at the first
             if st is presence[0]:
                 body.append(presence_call(presence, printer.expression))
@@ -335,6 +337,17 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     if doc_lines is None:
         doc_lines = port_doc_lines(lowered)
     return {"signature": f"def {lowered.name}({params}):", "doc": doc_lines, "body": body}
+
+
+def unread_temporaries(lowered: LoweredProgram) -> set[str]:
+    """The temporaries no statement or result reads: the lanes a vector row computes
+    beyond its row's end (the C computes them too, so the counts agree). Python prints
+    them with a leading underscore, the name linters take as meant to be unused."""
+    read = {var.name for st in lowered.body for var in tree_vars(st.tree)}
+    read |= {var.name for _, leaves in lowered.results for leaf in leaves
+             for var in tree_vars(leaf)}
+    return {st.target for st in lowered.body
+            if isinstance(st, LoweredAssign) and st.target not in read}
 
 
 def presence_labels(checks: list[LoweredCheck]) -> tuple[str, ...]:
