@@ -35,7 +35,7 @@ def _is_diagonal(M: sympy.Matrix) -> bool:
     return all(M[i, j] == 0 for i in range(M.rows) for j in range(M.cols) if i != j)
 
 
-def ikf_update(prog, mats, x, P, z, missing: bool = False):
+def ikf_update(prog, mats, x, P, z, missing: bool = False, prior: str = "the predicted P"):
     """Stage one information-form step; ``missing``: NaN entries of z are skipped."""
     F, H, R, W = mats["F"], mats["H"], mats["R"], mats["GQGt"]
     xp = staging.matmul(prog, F, x)
@@ -55,7 +55,7 @@ def ikf_update(prog, mats, x, P, z, missing: bool = False):
         HtRinv = staging.transpose(staging.spd_solve(prog, mask_symmetric(prog, R, z),
                                                      H_present, name="R",
                                                      axis="measurements"))
-    info = staging.add(prog, staging.spd_inverse(prog, Pp, name="the predicted P",
+    info = staging.add(prog, staging.spd_inverse(prog, Pp, name=prior,
                                                  axis="states"),
                        staging.matmul(prog, HtRinv, H, symmetric_result=True),
                        symmetric_result=True)
@@ -70,9 +70,11 @@ def ikf_update(prog, mats, x, P, z, missing: bool = False):
 
 def derive_unit(model, spec, options):
     missing = options.missing
+    # the update-first step's stand-in model inverts P0 where the step inverts P(k+1/k)
+    prior = getattr(model, "prior_covariance", "the predicted P")
 
     def update(prog, mats, x, P, z):
-        return ikf_update(prog, mats, x, P, z, missing=missing)
+        return ikf_update(prog, mats, x, P, z, missing=missing, prior=prior)
 
     step = time_varying_program(model, update, spec.title, options.P0_pattern)
     unit = make_unit(model, spec, {"step": step}, options)

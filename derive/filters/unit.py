@@ -125,6 +125,9 @@ class _WithoutPrediction:
     P with z; P0 declared with ``pattern`` (the closed pattern of the model's own step,
     whatever name the derivation asks for). Everything else is the model's."""
 
+    #: the covariance an update of this model starts from: P0 itself, not a prediction
+    prior_covariance = "P0"
+
     def __init__(self, model, pattern) -> None:
         self._model, self._pattern = model, pattern
 

@@ -110,6 +110,18 @@ def test_the_pattern_status_of_each_program_is_its_own():
     assert {s.program for s in described.statuses if s.zero} >= {"enter"}
 
 
+def test_the_update_first_ikf_names_P0_whose_pivot_fails(tmp_path):
+    """With start=update step 0 inverts P0 itself (no prediction): a P0 that is not
+    positive definite is named as P0, not as a predicted P."""
+    model = LinearModel("cv_ikf", ["s", "v"], ["z"], [[1, 1], [0, 1]], [[1, 0]],
+                        [[0.01, 0], [0, 0.01]], [[1.0]], P0=np.eye(2).tolist())
+    generate(model, ["ikf"], lang="python", out=tmp_path, options={"start": "update"})
+    ikf = load_python(tmp_path / "cv_ikf" / "ikf.py")
+    with pytest.raises(NumericalError, match=r"^step 0: P0 is not positive definite"):
+        ikf.run(np.ones((3, 1)), np.zeros(2), -np.eye(2))
+    assert ikf.run(np.ones((3, 1)), np.zeros(2), np.eye(2))[0].shape == (3, 2)
+
+
 def test_the_ikf_names_the_matrix_whose_pivot_fails(tmp_path):
     """A free R given negative: the IKF's LDL^T solve of R fails at its first pivot, and
     the status says R (it said "S is not positive definite", and an IKF has no S)."""
