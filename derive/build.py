@@ -143,6 +143,11 @@ class FilterModule:
         (:func:`derive.aligned.aligned_empty`, as derive.batch's outputs)."""
         return aligned_empty(shape, self.dtype)
 
+    def prepared(self, function: str, arrays: dict[str, np.ndarray]) -> PreparedCall:
+        """``PREFIX_function`` bound to ``arrays`` (by argument name, each of the kernel's
+        dtype, contiguous and of its shape; see :class:`PreparedCall`)."""
+        return PreparedCall(self, function, arrays)
+
     def converted(self, function: str, name: str, value) -> np.ndarray:
         """``value`` as a contiguous array of the kernel's dtype; DtypeError when that would
         round it (a wider floating type given to a float32 kernel, an integer the dtype
@@ -212,34 +217,59 @@ class FilterModule:
             first = next(a for a in inputs if a.per_step)
             shape = np.shape(given[inputs.index(first)])
             steps = shape[0] if shape else 0
-        c_args, keep, outputs, strides = [], [], [], []
+        arrays, outputs = {}, []
         for arg in fn.arguments:
             if arg.output:
                 if arg.optional and not with_covariance:
-                    c_args.append(self.ffi.NULL)
                     continue
-                out = self.empty(arg.size(steps))
+                arrays[arg.name] = out = self.empty(arg.size(steps))
                 if not arg.scratch:  # a work array is written, not returned
                     outputs.append((arg, out))
-                c_args.append(self.buffer(out))
             else:
-                array = self._array(name, arg, values[arg.name], steps)
-                keep.append(array)
-                c_args.append(self.buffer(array))
-                if arg.strided:  # 0: one row for every step; the row's length: one per step
-                    strides.append(arg.size() if array.ndim == 2 else 0)
-        if fn.has_steps:
-            c_args.insert(0, steps)
-        c_args += strides
-        status = getattr(self.lib, fn.name)(*c_args)
-        if fn.returns_status and status:
-            raise status_error(self, name, status, values)
+                arrays[arg.name] = self._array(name, arg, values[arg.name], steps)
+        self.prepared(name, arrays)(*((steps,) if fn.has_steps else ()))
         if fn.has_steps:
             shaped = [out.reshape(tuple(steps if d == "steps" else d for d in arg.dims))
                       for arg, out in outputs]
         else:  # P and U as (n, n) arrays, as run returns (steps, n, n)
             shaped = [out.reshape(tuple(int(d) for d in arg.dims)) for arg, out in outputs]
         return shaped[0] if len(shaped) == 1 else tuple(shaped)
+
+
+class PreparedCall:
+    """One C function of a module with its buffers made once: ``arrays`` holds an array
+    for each argument by name (an optional output left out is passed as NULL). A call
+    passes the leading counts (steps; then tracks for run_tracks) and the stride of each
+    strided input (its row's length when it has a row per step, 0 for one row shared by
+    every step), raises the error of a non-zero status and returns the status. The
+    arrays may be rewritten in place between calls (a fit's parameters)."""
+
+    def __init__(self, module: FilterModule, function: str,
+                 arrays: dict[str, np.ndarray]) -> None:
+        fn = module.functions[function]
+        self.module, self.function, self.arrays = module, function, arrays
+        self.inputs = {a.name: arrays.get(a.name) for a in fn.arguments if not a.output}
+        args, strides = [], []
+        for arg in fn.arguments:
+            array = arrays.get(arg.name)
+            if array is None:
+                if not arg.optional:
+                    raise ShapeError(f"{module.prefix}_{function}: argument {arg.name!r} "
+                                     "is required")
+                args.append(module.ffi.NULL)
+                continue
+            args.append(module.buffer(array))
+            if arg.strided and not arg.output:
+                strides.append(arg.size() if array.ndim == 2 else 0)
+        self._c = getattr(module.lib, fn.name)
+        self._args, self._strides = args, strides
+        self._returns_status = fn.returns_status
+
+    def __call__(self, *counts: int) -> int:
+        status = self._c(*counts, *self._args, *self._strides)
+        if self._returns_status and status:
+            raise status_error(self.module, self.function, status, self.inputs)
+        return status
 
 
 #: The programs run (and run_tracks) calls, whose statuses it returns: ``enter`` (when the
@@ -330,8 +360,7 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
     ``out``: (xs, Ps) written in place instead (C-contiguous, of those shapes; Ps None when
     not stored), as derive.batch passes the slices of one result. Every array is of the
     kernel's dtype (float32 for a float kernel)."""
-    fn = getattr(module.lib, f"{module.prefix}_run_tracks")
-    run = module.functions.get("run_tracks", module.functions.get("run"))
+    run = module.functions["run_tracks"]
     inputs = {a.name: a for a in run.arguments if not a.output}
     zs = module.converted("run_tracks", "z", zs)
     shape = zs.shape
@@ -349,7 +378,6 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
     zs, x0 = track_major("z", zs), track_major("x0", x0)
     n = int(inputs["x0"].dims[0])
     xs, Ps_out = out if out is not None else (module.empty((tracks, steps, n)), None)
-    buf = module.buffer
     Ps = None
     if P0 is not None:
         P0 = track_major("P0", P0)
@@ -357,22 +385,15 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
               ) if with_covariance else None
     if p is not None:
         p = module._array("run_tracks", inputs["p"], p, steps)
-    # in the function's order; its other optional outputs (a log-likelihood's lls, dlls)
-    # are not stored
+    # its other optional outputs (a log-likelihood's lls, dlls) are not stored
     given = {"z": zs, "x0": x0, "P0": P0, "xs": xs, "Ps": Ps, "p": p,
              "u": None if us is None else track_major("u", us)}
-    args = [steps, tracks]
-    for arg in run.arguments:
-        value = given.get(arg.name)
-        if value is None and not arg.optional:
-            raise ShapeError(f"{module.prefix}_run_tracks: argument {arg.name!r} is "
-                             "required (run it track by track with run)")
-        args.append(module.ffi.NULL if value is None else buf(value))
-    if p is not None:
-        args.append(inputs["p"].size() if p.ndim == 2 else 0)
-    status = fn(*args)
-    if status:
-        raise status_error(module, "run_tracks", status, {"P0": P0, "p": p, "z": zs})
+    absent = [a.name for a in run.arguments if not a.optional and given.get(a.name) is None]
+    if absent:
+        raise ShapeError(f"{module.prefix}_run_tracks: argument {absent[0]!r} is "
+                         "required (run it track by track with run)")
+    module.prepared("run_tracks", {k: v for k, v in given.items() if v is not None}
+                    )(steps, tracks)
     return xs if P0 is None else (xs, Ps)
 
 

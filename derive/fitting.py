@@ -40,7 +40,6 @@ import numpy as np
 import scipy.optimize
 
 from . import batch, catalog
-from .build import status_error
 from .domains import declared_domain
 from .errors import ModelError, NumericalError
 from .generation import is_model_file, resolve_model
@@ -300,41 +299,28 @@ class _TracksRun:
             raise ValueError("a filter without run_tracks runs one track a call")
         fn = module.functions[name]
         count, steps = len(tracks), len(tracks[0][0])
-        self.module, self.name, self.p = module, name, np.zeros(q, dtype=module.dtype)
+        self.p = np.zeros(q, dtype=module.dtype)
         self.lls = module.empty(count * steps)
         self.dlls = module.empty(count * steps * q).reshape(count * steps, q)
         given = {"z": [zs for zs, _ in tracks], "u": [us for _, us in tracks],
                  "x0": [x0] * count, "P0": [P0] * count}
-        #: run's outputs by name, each track's rows after the one before (Ps not stored)
-        self.outputs = {"lls": self.lls, "dlls": self.dlls}
-        outputs, self.values = self.outputs, {}
-        self.keep, args, strides = [], [steps] + ([count] if name == "run_tracks" else []), []
+        # run's arrays by name, each track's rows after the one before (Ps not stored)
+        arrays = {"lls": self.lls, "dlls": self.dlls, "p": self.p}
         for arg in fn.arguments:
-            if arg.output:
-                array = outputs.get(arg.name)
-                if array is None and arg.optional:
-                    args.append(module.ffi.NULL)
-                    continue
-                if array is None:
-                    array = outputs[arg.name] = module.empty(count * arg.size(steps))
-            elif arg.name == "p":
-                array = self.p
-                if arg.strided:
-                    strides.append(0)  # one row of p for every step
-            else:
-                array = np.ascontiguousarray(np.stack(given[arg.name]), dtype=module.dtype)
-                self.values[arg.name] = array
-            self.keep.append(array)
-            args.append(module.buffer(array))
-        self.function = getattr(module.lib, fn.name)
-        self.status = fn.returns_status
-        self.args = args + strides
+            if arg.output and arg.name not in arrays and not arg.optional:
+                arrays[arg.name] = module.empty(count * arg.size(steps))
+            elif not arg.output and arg.name not in arrays:
+                arrays[arg.name] = np.ascontiguousarray(np.stack(given[arg.name]),
+                                                        dtype=module.dtype)
+        #: run's outputs by name (xs, lls, dlls)
+        self.outputs = {a.name: arrays[a.name] for a in fn.arguments
+                        if a.output and a.name in arrays}
+        self.counts = (steps, count) if name == "run_tracks" else (steps,)
+        self.call = module.prepared(name, arrays)
 
     def __call__(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
         self.p[:] = theta
-        status = self.function(*self.args)
-        if self.status and status:
-            raise status_error(self.module, self.name, status, {**self.values, "p": self.p})
+        self.call(*self.counts)
         return float(np.sum(self.lls)), np.sum(self.dlls, axis=0)
 
 
