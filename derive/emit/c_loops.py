@@ -53,6 +53,13 @@ BLOCK_BYTES = 64 * 1024
 #: one core with it, 1.3e8 to 2.0e8 without; 8 of 8, 16, 32 best).
 AHEAD = 8
 PREFETCH = "DERIVE_PREFETCH"
+#: The locality of the prefetches (__builtin_prefetch's third argument): 2, into the L2
+#: and the caches beyond it (x86 prefetcht1). 0 (prefetchnta) fills only the L1 on Intel
+#: cores: the next block's lines, fetched up to a block ahead, left the 48 kB L1 before
+#: their use and came from memory again (Sapphire Rapids, 1,000,000 tracks x 100 steps, 2
+#: threads: 5.0e8 track-steps/s with 0, 8.6e8 with 2, 8.6e8 with 3; 1,000 steps, each
+#: lane's rows: 2.9e8, 8.5e8, 3.0e8; docs/performance.md).
+PREFETCH_LOCALITY = 2
 #: A block's tracks are contiguous in every array of run_tracks: while a block runs, the
 #: next block's arrays are prefetched, a share of their cache lines each step, when they
 #: hold at most this many bytes (``DERIVE_AHEAD_BYTES``, a quarter of a 1 MB L2), else each
@@ -124,7 +131,8 @@ def tracks_macro_lines(registers: int, element_bytes: int = 8) -> list[str]:
         "#endif",
         f"#ifndef {PREFETCH}",
         "#if defined(__GNUC__)",
-        f"#define {PREFETCH}(address, write) __builtin_prefetch((address), (write), 0)",
+        f"#define {PREFETCH}(address, write) __builtin_prefetch((address), (write), "
+        f"{PREFETCH_LOCALITY})",
         "#else",
         f"#define {PREFETCH}(address, write) ((void)(address))",
         "#endif",

@@ -74,7 +74,7 @@
 #endif
 #ifndef DERIVE_PREFETCH
 #if defined(__GNUC__)
-#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 2)
 #else
 #define DERIVE_PREFETCH(address, write) ((void)(address))
 #endif
