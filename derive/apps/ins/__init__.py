@@ -1,4 +1,4 @@
-"""The INS/GNSS application of the catalog model ``ins_gnss`` (SPEC.md §8): the simulated
+"""The INS/GNSS application of the catalog model ``ins_gnss`` (docs/navigation.md): the simulated
 flight (flight, quaternion, constants), a NumPy reference EKF written by hand (reference),
 how runs are compared and measured (compare), the generated EKF over a flight (run), and
 the benchmark peers of the same functions (symforce_ekf, casadi_ekf, filterpy_ekf, with the

@@ -1,6 +1,6 @@
 """CasADi's generated C for the INS/GNSS EKF's predict and updates (a benchmark peer).
 
-The same equations as derive.apps.ins.reference (SPEC.md §8), built from CasADi SX
+The same equations as derive.apps.ins.reference (docs/navigation.md), built from CasADi SX
 expressions with CasADi's symbolic Jacobians and inverse; P is read symmetric (entry (i, j)
 is the symbol of (min(i, j), max(i, j)), derive's upper-triangle read), and the quaternion
 is renormalised after each update and at the start of predict (as derive's predict).

@@ -1,7 +1,7 @@
-"""The numbers of SPEC.md section 8 (the catalog model ``ins_gnss``) as the NumPy side of the
+"""The numbers of docs/navigation.md (the catalog model ``ins_gnss``) as the NumPy side of the
 INS/GNSS application reads them: noise, gravity, start, flight plan and true biases.
 
-They are SPEC's values, typed once here for the reference EKF and the simulation; the
+They are the model's values, typed once here for the reference EKF and the simulation; the
 catalog model file (derive/catalog/ins_gnss.toml) states the same numbers for derive, and
 tests/navigation/test_nav_ins_catalog.py checks that the two agree.
 """
@@ -70,5 +70,5 @@ def input_noise() -> np.ndarray:
 
 
 def p0() -> np.ndarray:
-    """P0 of SPEC section 8."""
+    """P0 of docs/navigation.md."""
     return np.diag(P0_STD ** 2)

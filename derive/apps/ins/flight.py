@@ -1,4 +1,4 @@
-"""The simulated flight of SPEC.md section 8: the truth at 1 kHz with exact kinematics and the
+"""The simulated flight of docs/navigation.md: the truth at 1 kHz with exact kinematics and the
 sensors the INS/GNSS EKF (catalog model ``ins_gnss``) fuses.
 
 The flight plan (times in s, NED, horizontal speed V):
@@ -25,7 +25,7 @@ The sensors (seeded, numpy.random.default_rng(seed)):
 - IMU at 100 Hz: an integrating IMU; its sample over [t_k, t_k + 10 ms] is the mean of the
   truth's ten 1 ms body rates and specific forces (delta angle and delta velocity over dt),
   plus the true biases (constant over the flight), plus white noise. The noise per sample
-  has σ = σg (gyro) and σa (accelerometer), the input noise Qu of the filter: SPEC gives
+  has σ = σg (gyro) and σa (accelerometer), the input noise Qu of the filter: the model gives
   Qu = diag(σg², σa²) as the covariance of each input sample, so the per-sample σ is σg
   itself (as a density it would be σg·√dt rad/√s; the filter's Fu Qu Fuᵀ with Fu ∝ dt
   makes the per-step attitude variance σg² dt²/4).
@@ -180,7 +180,7 @@ class Flight:
 
 
 def simulate(seed: int = 0, duration: float = c.DURATION) -> Flight:
-    """The seeded flight of SPEC section 8 (see the module docstring)."""
+    """The seeded flight of docs/navigation.md (see the module docstring)."""
     rng = np.random.default_rng(seed)
     tr = truth(duration)
     per_imu = int(round(c.IMU_DT / c.TRUTH_DT))

@@ -1,5 +1,5 @@
 """Quaternions (scalar first, rotating body vectors into NED) for the INS application, in
-NumPy: the product and the rotation matrix exactly as SPEC.md section 8 writes them, and the
+NumPy: the product and the rotation matrix exactly as docs/navigation.md writes them, and the
 exact exponential and logarithm the truth simulation needs.
 
 Arrays of quaternions are (..., 4); every function works on one or many.
@@ -11,7 +11,7 @@ import numpy as np
 
 
 def multiply(q: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """q ⊗ r (SPEC section 8)."""
+    """q ⊗ r (docs/navigation.md)."""
     q0, q1, q2, q3 = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
     r0, r1, r2, r3 = np.moveaxis(np.asarray(r, dtype=float), -1, 0)
     return np.stack([
@@ -28,7 +28,7 @@ def conjugate(q: np.ndarray) -> np.ndarray:
 
 
 def rotation_matrix(q: np.ndarray) -> np.ndarray:
-    """C(q) of SPEC section 8 (not normalised: the form the filter uses), shape (..., 3, 3)."""
+    """C(q) of docs/navigation.md (not normalised: the form the filter uses), shape (..., 3, 3)."""
     q0, q1, q2, q3 = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
     rows = [
         [1 - 2 * (q2 * q2 + q3 * q3), 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)],

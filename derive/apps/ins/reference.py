@@ -1,4 +1,4 @@
-"""A NumPy EKF of the INS/GNSS model written by hand from SPEC.md section 8, independently of
+"""A NumPy EKF of the INS/GNSS model written by hand from docs/navigation.md, independently of
 derive's derivation: the Jacobians below are worked out on paper from the equations (and
 checked against finite differences in tests/navigation/test_nav_ins_reference.py), not by sympy.
 
@@ -44,7 +44,7 @@ def right_matrix(r: np.ndarray) -> np.ndarray:
 
 
 def rotated_jacobian(q: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """∂(C(q) a)/∂q (3 x 4), differentiating C(q) of SPEC entry by entry."""
+    """∂(C(q) a)/∂q (3 x 4), differentiating C(q) of docs/navigation.md entry by entry."""
     q0, q1, q2, q3 = q
     a1, a2, a3 = a
     return 2.0 * np.array([
@@ -63,7 +63,7 @@ def _increment(x: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
 
 
 def f(x: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-    """The process model of SPEC section 8."""
+    """The process model of docs/navigation.md."""
     force = u[3:] - x[BA_ROWS]
     out = x.copy()
     out[Q_ROWS] = multiply(x[Q_ROWS], _increment(x, u, dt))

@@ -32,7 +32,7 @@ def generated_run(module, flight, x0=None, P0=None) -> tuple[np.ndarray, np.ndar
 
 def stepwise_run(module, flight, x0=None, P0=None) -> reference.Run:
     """The generated predict and updates called step by step; each update's NIS from the
-    generated filter's predicted (x, P) (h and H of SPEC §8, linear in the state)."""
+    generated filter's predicted (x, P) (h and H of docs/navigation.md, linear in the state)."""
     x = np.array(X0 if x0 is None else x0, dtype=float)
     P = np.array(p0() if P0 is None else P0, dtype=float)
     xs = np.empty((flight.steps, 16))

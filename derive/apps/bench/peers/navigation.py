@@ -1,5 +1,5 @@
 """The navigation rows of ``derive bench``: the INS/GNSS EKF of the catalog model
-``ins_gnss`` (SPEC.md §8) against its peers.
+``ins_gnss`` (docs/navigation.md) against its peers.
 
 - Generation: seconds for derive to generate the EKF's C (predict and both updates, with
   run), against SymForce's C++ codegen of the same three functions
@@ -148,8 +148,8 @@ class NavigationResult:
         return out
 
     def lines(self) -> list[str]:
-        out = [f"navigation: {MODEL} EKF (SPEC §8, 16 states, inputs in f, sensors gnss and "
-               "baro); generation of predict + update_gnss + update_baro: derive "
+        out = [f"navigation: {MODEL} EKF (docs/navigation.md, 16 states, inputs in f, sensors "
+               "gnss and baro); generation of predict + update_gnss + update_baro: derive "
                + ("n/a" if self.generation_seconds is None else
                   f"{self.generation_seconds:.2f} s (C; CPU {self.generation_cpu_seconds:.2f} s)")
                + ", SymForce " + ("n/a" if self.symforce_seconds is None else
