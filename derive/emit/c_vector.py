@@ -250,10 +250,13 @@ class ChunkPrinter:
         blocks: an upper block as its four chunks, the block below the diagonal as their
         transposition, a diagonal block as its chunks with the lanes below the diagonal
         taken from its transposition (the mirror, exactly: the same values). A block is
-        written so only when the output's entries are those lanes, checked entry by entry.
-        Returns the first indices of the runs written so (the others: as any output)."""
+        written so only when the output's entries are those lanes, checked entry by entry
+        (also where 4 does not divide n: the blocks whose rows' chunks line up, as a tangent
+        space of 23 has them). Returns the first indices of the runs written so (the others:
+        as any output; a block store that starts off a run's start leaves the runs it
+        overlaps to be written as well, with the same values)."""
         n = round(len(leaves) ** 0.5)
-        if self.lanes != 4 or n * n != len(leaves) or n % 4:
+        if self.lanes != 4 or n * n != len(leaves) or n < 4:
             return set()
 
         def name(i: int, j: int) -> str | None:
