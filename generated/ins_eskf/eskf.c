@@ -879,11 +879,9 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const derive_vd v_t321_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t246, t262, t278, t294}), v_t321_2);
     const derive_vd v_t321_4 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t247, t263, t279, t295}), v_t321_3);
     const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){t76, t76, t76, t76}), ((derive_vd){t248, t264, t280, t296}), v_t321_4);
-    const double t321 = v_t321[0];
     const double t322 = v_t321[1];
     const double t323 = v_t321[2];
     const double t324 = v_t321[3];
-    *(derive_vd_unaligned *)&P_new[4] = v_t321;
     *(derive_vd_unaligned *)&P_new[72] = ((derive_vd){t250, t251, t252, t322});
     #else
     const double t321 = DERIVE_FMA(t76, t248, DERIVE_FMA(t73, t247, DERIVE_FMA(t71, t246, DERIVE_FMA(t117, t239, DERIVE_FMA(t116, t238, t115*t237)))));
@@ -972,7 +970,22 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const double t343 = v_t342[1];
     const double t344 = v_t342[2];
     const double t345 = v_t342[3];
-    *(derive_vd_unaligned *)&P_new[60] = ((derive_vd){t321, t329, t336, t342});
+    const derive_vd tr_v_t321_0 = __builtin_shufflevector(v_t321, v_t329, 0, 4, 2, 6);
+    const derive_vd tr_v_t321_1 = __builtin_shufflevector(v_t321, v_t329, 1, 5, 3, 7);
+    const derive_vd tr_v_t321_2 = __builtin_shufflevector(v_t336, v_t342, 0, 4, 2, 6);
+    const derive_vd tr_v_t321_3 = __builtin_shufflevector(v_t336, v_t342, 1, 5, 3, 7);
+    const derive_vd tr_v_t321_c0 = __builtin_shufflevector(tr_v_t321_0, tr_v_t321_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t321_c1 = __builtin_shufflevector(tr_v_t321_1, tr_v_t321_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t321_c2 = __builtin_shufflevector(tr_v_t321_0, tr_v_t321_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t321_c3 = __builtin_shufflevector(tr_v_t321_1, tr_v_t321_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t321;
+    *(derive_vd_unaligned *)&P_new[19] = v_t329;
+    *(derive_vd_unaligned *)&P_new[34] = v_t336;
+    *(derive_vd_unaligned *)&P_new[49] = v_t342;
+    *(derive_vd_unaligned *)&P_new[60] = tr_v_t321_c0;
+    *(derive_vd_unaligned *)&P_new[75] = tr_v_t321_c1;
+    *(derive_vd_unaligned *)&P_new[90] = tr_v_t321_c2;
+    *(derive_vd_unaligned *)&P_new[105] = tr_v_t321_c3;
     #else
     const double t342 = DERIVE_FMA(t186, t252, DERIVE_FMA(t129, t251, DERIVE_FMA(t128, t250, DERIVE_FMA(t127, t239, DERIVE_FMA(t126, t238, DERIVE_FMA(t125, t237, t173))) + t240)));
     const double t343 = DERIVE_FMA(t186, t268, DERIVE_FMA(t129, t267, DERIVE_FMA(t128, t266, DERIVE_FMA(t127, t255, DERIVE_FMA(t126, t254, DERIVE_FMA(t125, t253, t174))) + t256)));

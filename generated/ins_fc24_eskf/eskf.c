@@ -342,11 +342,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t195_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[219], P[220], P[221], P[222]}), v_t195_2);
     const derive_vd v_t195_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[242], P[243], P[244], P[245]}), v_t195_3);
     const derive_vd v_t195 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[265], P[266], P[267], P[268]}), v_t195_4);
-    const double t195 = v_t195[0];
     const double t196 = v_t195[1];
     const double t197 = v_t195[2];
     const double t198 = v_t195[3];
-    *(derive_vd_unaligned *)&P_new[12] = v_t195;
     #else
     const double t195 = DERIVE_FMA(t175, P[265], DERIVE_FMA(t106, P[242], DERIVE_FMA(t71, P[219], DERIVE_FMA(t105, P[58], DERIVE_FMA(t104, P[35], t103*P[12])))));
     const double t196 = DERIVE_FMA(t175, P[266], DERIVE_FMA(t106, P[243], DERIVE_FMA(t71, P[220], DERIVE_FMA(t105, P[59], DERIVE_FMA(t104, P[36], t103*P[13])))));
@@ -368,11 +366,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t199_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[223], P[224], P[225], P[226]}), v_t199_2);
     const derive_vd v_t199_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[246], P[247], P[248], P[249]}), v_t199_3);
     const derive_vd v_t199 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[269], P[270], P[271], P[272]}), v_t199_4);
-    const double t199 = v_t199[0];
     const double t200 = v_t199[1];
     const double t201 = v_t199[2];
     const double t202 = v_t199[3];
-    *(derive_vd_unaligned *)&P_new[16] = v_t199;
     #else
     const double t199 = DERIVE_FMA(t175, P[269], DERIVE_FMA(t106, P[246], DERIVE_FMA(t71, P[223], DERIVE_FMA(t105, P[62], DERIVE_FMA(t104, P[39], t103*P[16])))));
     const double t200 = DERIVE_FMA(t175, P[270], DERIVE_FMA(t106, P[247], DERIVE_FMA(t71, P[224], DERIVE_FMA(t105, P[63], DERIVE_FMA(t104, P[40], t103*P[17])))));
@@ -677,8 +673,23 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t256 = v_t255[1];
     const double t257 = v_t255[2];
     const double t258 = v_t255[3];
+    const derive_vd tr_v_t195_0 = __builtin_shufflevector(v_t195, v_t215, 0, 4, 2, 6);
+    const derive_vd tr_v_t195_1 = __builtin_shufflevector(v_t195, v_t215, 1, 5, 3, 7);
+    const derive_vd tr_v_t195_2 = __builtin_shufflevector(v_t235, v_t255, 0, 4, 2, 6);
+    const derive_vd tr_v_t195_3 = __builtin_shufflevector(v_t235, v_t255, 1, 5, 3, 7);
+    const derive_vd tr_v_t195_c0 = __builtin_shufflevector(tr_v_t195_0, tr_v_t195_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t195_c1 = __builtin_shufflevector(tr_v_t195_1, tr_v_t195_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t195_c2 = __builtin_shufflevector(tr_v_t195_0, tr_v_t195_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t195_c3 = __builtin_shufflevector(tr_v_t195_1, tr_v_t195_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t195;
+    *(derive_vd_unaligned *)&P_new[35] = v_t215;
+    *(derive_vd_unaligned *)&P_new[58] = v_t235;
+    *(derive_vd_unaligned *)&P_new[81] = v_t255;
+    *(derive_vd_unaligned *)&P_new[276] = tr_v_t195_c0;
+    *(derive_vd_unaligned *)&P_new[299] = tr_v_t195_c1;
+    *(derive_vd_unaligned *)&P_new[322] = tr_v_t195_c2;
+    *(derive_vd_unaligned *)&P_new[345] = tr_v_t195_c3;
     *(derive_vd_unaligned *)&P_new[80] = ((derive_vd){t254, t255, t256, t257});
-    *(derive_vd_unaligned *)&P_new[276] = ((derive_vd){t195, t215, t235, t255});
     #else
     const double t255 = DERIVE_FMA(t180, P[334], DERIVE_FMA(t179, P[311], DERIVE_FMA(t178, P[288], DERIVE_FMA(t121, P[58], DERIVE_FMA(t120, P[35], DERIVE_FMA(t119, P[12], P[81]))))));
     const double t256 = DERIVE_FMA(t180, P[335], DERIVE_FMA(t179, P[312], DERIVE_FMA(t178, P[289], DERIVE_FMA(t121, P[59], DERIVE_FMA(t120, P[36], DERIVE_FMA(t119, P[13], P[82]))))));
@@ -704,8 +715,23 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t260 = v_t259[1];
     const double t261 = v_t259[2];
     const double t262 = v_t259[3];
+    const derive_vd tr_v_t199_0 = __builtin_shufflevector(v_t199, v_t219, 0, 4, 2, 6);
+    const derive_vd tr_v_t199_1 = __builtin_shufflevector(v_t199, v_t219, 1, 5, 3, 7);
+    const derive_vd tr_v_t199_2 = __builtin_shufflevector(v_t239, v_t259, 0, 4, 2, 6);
+    const derive_vd tr_v_t199_3 = __builtin_shufflevector(v_t239, v_t259, 1, 5, 3, 7);
+    const derive_vd tr_v_t199_c0 = __builtin_shufflevector(tr_v_t199_0, tr_v_t199_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t199_c1 = __builtin_shufflevector(tr_v_t199_1, tr_v_t199_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t199_c2 = __builtin_shufflevector(tr_v_t199_0, tr_v_t199_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t199_c3 = __builtin_shufflevector(tr_v_t199_1, tr_v_t199_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[16] = v_t199;
+    *(derive_vd_unaligned *)&P_new[39] = v_t219;
+    *(derive_vd_unaligned *)&P_new[62] = v_t239;
+    *(derive_vd_unaligned *)&P_new[85] = v_t259;
+    *(derive_vd_unaligned *)&P_new[368] = tr_v_t199_c0;
+    *(derive_vd_unaligned *)&P_new[391] = tr_v_t199_c1;
+    *(derive_vd_unaligned *)&P_new[414] = tr_v_t199_c2;
+    *(derive_vd_unaligned *)&P_new[437] = tr_v_t199_c3;
     *(derive_vd_unaligned *)&P_new[84] = ((derive_vd){t258, t259, t260, t261});
-    *(derive_vd_unaligned *)&P_new[368] = ((derive_vd){t199, t219, t239, t259});
     #else
     const double t259 = DERIVE_FMA(t180, P[338], DERIVE_FMA(t179, P[315], DERIVE_FMA(t178, P[292], DERIVE_FMA(t121, P[62], DERIVE_FMA(t120, P[39], DERIVE_FMA(t119, P[16], P[85]))))));
     const double t260 = DERIVE_FMA(t180, P[339], DERIVE_FMA(t179, P[316], DERIVE_FMA(t178, P[293], DERIVE_FMA(t121, P[63], DERIVE_FMA(t120, P[40], DERIVE_FMA(t119, P[17], P[86]))))));
@@ -804,7 +830,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t280 = v_t279[1];
     const double t281 = v_t279[2];
     const double t282 = v_t279[3];
-    *(derive_vd_unaligned *)&P_new[104] = v_t279;
     *(derive_vd_unaligned *)&P_new[300] = ((derive_vd){t216, t236, t256, t280});
     #else
     const double t279 = DERIVE_FMA(t183, P[334], DERIVE_FMA(t182, P[311], DERIVE_FMA(t181, P[288], DERIVE_FMA(t127, P[58], DERIVE_FMA(t126, P[35], DERIVE_FMA(t125, P[12], P[104]))))));
@@ -827,11 +852,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t283_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[292], P[293], P[294], P[295]}), v_t283_2);
     const derive_vd v_t283_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[315], P[316], P[317], P[318]}), v_t283_3);
     const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[338], P[339], P[340], P[341]}), v_t283_4);
-    const double t283 = v_t283[0];
     const double t284 = v_t283[1];
     const double t285 = v_t283[2];
     const double t286 = v_t283[3];
-    *(derive_vd_unaligned *)&P_new[108] = v_t283;
     *(derive_vd_unaligned *)&P_new[392] = ((derive_vd){t220, t240, t260, t284});
     #else
     const double t283 = DERIVE_FMA(t183, P[338], DERIVE_FMA(t182, P[315], DERIVE_FMA(t181, P[292], DERIVE_FMA(t127, P[62], DERIVE_FMA(t126, P[39], DERIVE_FMA(t125, P[16], P[108]))))));
@@ -1144,8 +1167,23 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t352 = v_t351[1];
     const double t353 = v_t351[2];
     const double t354 = v_t351[3];
+    const derive_vd tr_v_t279_0 = __builtin_shufflevector(v_t279, v_t303, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_1 = __builtin_shufflevector(v_t279, v_t303, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_2 = __builtin_shufflevector(v_t327, v_t351, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_3 = __builtin_shufflevector(v_t327, v_t351, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_c0 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t279_c1 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t279_c2 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t279_c3 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[104] = v_t279;
+    *(derive_vd_unaligned *)&P_new[127] = v_t303;
+    *(derive_vd_unaligned *)&P_new[150] = v_t327;
+    *(derive_vd_unaligned *)&P_new[173] = v_t351;
+    *(derive_vd_unaligned *)&P_new[280] = tr_v_t279_c0;
+    *(derive_vd_unaligned *)&P_new[303] = tr_v_t279_c1;
+    *(derive_vd_unaligned *)&P_new[326] = tr_v_t279_c2;
+    *(derive_vd_unaligned *)&P_new[349] = tr_v_t279_c3;
     *(derive_vd_unaligned *)&P_new[172] = ((derive_vd){t350, t351, t352, t353});
-    *(derive_vd_unaligned *)&P_new[280] = ((derive_vd){t279, t303, t327, t351});
     #else
     const double t351 = DERIVE_FMA(p[0], P[104], P[173]);
     const double t352 = DERIVE_FMA(p[0], P[105], P[174]);
@@ -1166,8 +1204,23 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t356 = v_t355[1];
     const double t357 = v_t355[2];
     const double t358 = v_t355[3];
+    const derive_vd tr_v_t283_0 = __builtin_shufflevector(v_t283, v_t307, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_1 = __builtin_shufflevector(v_t283, v_t307, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_2 = __builtin_shufflevector(v_t331, v_t355, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_3 = __builtin_shufflevector(v_t331, v_t355, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_c0 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t283_c1 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t283_c2 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t283_c3 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[108] = v_t283;
+    *(derive_vd_unaligned *)&P_new[131] = v_t307;
+    *(derive_vd_unaligned *)&P_new[154] = v_t331;
+    *(derive_vd_unaligned *)&P_new[177] = v_t355;
+    *(derive_vd_unaligned *)&P_new[372] = tr_v_t283_c0;
+    *(derive_vd_unaligned *)&P_new[395] = tr_v_t283_c1;
+    *(derive_vd_unaligned *)&P_new[418] = tr_v_t283_c2;
+    *(derive_vd_unaligned *)&P_new[441] = tr_v_t283_c3;
     *(derive_vd_unaligned *)&P_new[176] = ((derive_vd){t354, t355, t356, t357});
-    *(derive_vd_unaligned *)&P_new[372] = ((derive_vd){t283, t307, t331, t355});
     #else
     const double t355 = DERIVE_FMA(p[0], P[108], P[177]);
     const double t356 = DERIVE_FMA(p[0], P[109], P[178]);
@@ -1337,11 +1390,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t276, t300, t324, t348}), v_t391_2);
     const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){t277, t301, t325, t349}), v_t391_3);
     const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){t278, t302, t326, t350}), v_t391_4);
-    const double t391 = v_t391[0];
     const double t392 = v_t391[1];
     const double t393 = v_t391[2];
     const double t394 = v_t391[3];
-    *(derive_vd_unaligned *)&P_new[4] = v_t391;
     *(derive_vd_unaligned *)&P_new[112] = ((derive_vd){t288, t289, t290, t392});
     #else
     const double t391 = DERIVE_FMA(t175, t278, DERIVE_FMA(t106, t277, DERIVE_FMA(t71, t276, DERIVE_FMA(t105, t269, DERIVE_FMA(t104, t268, t103*t267)))));
@@ -1430,7 +1481,22 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t413 = v_t412[1];
     const double t414 = v_t412[2];
     const double t415 = v_t412[3];
-    *(derive_vd_unaligned *)&P_new[92] = ((derive_vd){t391, t399, t406, t412});
+    const derive_vd tr_v_t391_0 = __builtin_shufflevector(v_t391, v_t399, 0, 4, 2, 6);
+    const derive_vd tr_v_t391_1 = __builtin_shufflevector(v_t391, v_t399, 1, 5, 3, 7);
+    const derive_vd tr_v_t391_2 = __builtin_shufflevector(v_t406, v_t412, 0, 4, 2, 6);
+    const derive_vd tr_v_t391_3 = __builtin_shufflevector(v_t406, v_t412, 1, 5, 3, 7);
+    const derive_vd tr_v_t391_c0 = __builtin_shufflevector(tr_v_t391_0, tr_v_t391_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t391_c1 = __builtin_shufflevector(tr_v_t391_1, tr_v_t391_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t391_c2 = __builtin_shufflevector(tr_v_t391_0, tr_v_t391_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t391_c3 = __builtin_shufflevector(tr_v_t391_1, tr_v_t391_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t391;
+    *(derive_vd_unaligned *)&P_new[27] = v_t399;
+    *(derive_vd_unaligned *)&P_new[50] = v_t406;
+    *(derive_vd_unaligned *)&P_new[73] = v_t412;
+    *(derive_vd_unaligned *)&P_new[92] = tr_v_t391_c0;
+    *(derive_vd_unaligned *)&P_new[115] = tr_v_t391_c1;
+    *(derive_vd_unaligned *)&P_new[138] = tr_v_t391_c2;
+    *(derive_vd_unaligned *)&P_new[161] = tr_v_t391_c3;
     #else
     const double t412 = DERIVE_FMA(t180, t281, DERIVE_FMA(t179, t280, DERIVE_FMA(t178, t279, DERIVE_FMA(t121, t269, DERIVE_FMA(t120, t268, DERIVE_FMA(t119, t267, t161))) + t270)));
     const double t413 = DERIVE_FMA(t180, t305, DERIVE_FMA(t179, t304, DERIVE_FMA(t178, t303, DERIVE_FMA(t121, t293, DERIVE_FMA(t120, t292, DERIVE_FMA(t119, t291, t162))) + t294)));
