@@ -189,14 +189,23 @@ class ChunkPrinter:
             done = self._symmetric_blocks(port, leaves) if port in symmetric else set()
             for first in range(0, len(leaves), self.lanes):
                 run = leaves[first:first + self.lanes]
-                if first in done:
-                    continue
-                if len(run) == self.lanes and all(isinstance(v, Var) and v.name in self.order
-                                                  for v in run):
+                left = [k for k in range(first, first + len(run)) if k not in done]
+                if len(left) == self.lanes and all(isinstance(v, Var) and v.name in self.order
+                                                   for v in run):
                     self._after([v.name for v in run],
                                 [("store", port, first, self._operand(tuple(run)))])
-                else:
-                    self.stores += [(port, first + k) for k in range(len(run))]
+                    continue
+                for k in left if len(left) < len(run) else ():
+                    # the entries a block store left: each a lane written after its chunk
+                    leaf = leaves[k]
+                    if isinstance(leaf, Var) and leaf.name in self.order:
+                        chunk = self.chunk_lanes[self.first_lane[leaf.name]]
+                        self._after([leaf.name], [("lane", port, k, self.vectors[chunk],
+                                                   chunk.index(leaf.name))])
+                    else:
+                        self.stores.append((port, k))
+                if len(left) == len(run):
+                    self.stores += [(port, k) for k in left]
         # the scalar form writes an output entry that is a chunk's lane right after the
         # lane's statement (at the end, every entry would stay live to the end of the
         # function: ins_fc24's update_baro spilled 300 of them)
@@ -252,9 +261,8 @@ class ChunkPrinter:
         taken from its transposition (the mirror, exactly: the same values). A block is
         written so only when the output's entries are those lanes, checked entry by entry
         (also where 4 does not divide n: the blocks whose rows' chunks line up, as a tangent
-        space of 23 has them). Returns the first indices of the runs written so (the others:
-        as any output; a block store that starts off a run's start leaves the runs it
-        overlaps to be written as well, with the same values)."""
+        space of 23 has them). Returns the entries written so; of a run of entries that a
+        block store covers in part, the others are each a lane written after its chunk."""
         n = round(len(leaves) ** 0.5)
         if self.lanes != 4 or n * n != len(leaves) or n < 4:
             return set()
@@ -288,15 +296,15 @@ class ChunkPrinter:
                         vector = (vectors[r] if r == 0 else
                                   f"__builtin_shufflevector({vectors[r]}, {columns[r]}, {mask})")
                         lines.append(("store", port, a * n + 4 * bi, vector))
-                        done.add(a * n + 4 * bi)
+                        done.update(range(a * n + 4 * bi, a * n + 4 * bi + 4))
                 else:
                     for r, a in enumerate(rows):
                         lines.append(("store", port, a * n + 4 * bj, vectors[r]))
-                        done.add(a * n + 4 * bj)
+                        done.update(range(a * n + 4 * bj, a * n + 4 * bj + 4))
                     for k in range(4):
                         b = 4 * bj + k
                         lines.append(("store", port, b * n + 4 * bi, columns[k]))
-                        done.add(b * n + 4 * bi)
+                        done.update(range(b * n + 4 * bi, b * n + 4 * bi + 4))
                 self._after([lane for c in chunks for lane in c], lines)
         return done
 
@@ -352,6 +360,13 @@ class ChunkPrinter:
         return [OPEN] + [f"{place(port, k)} = {self.printer.expression(self.results[port][k])};"
                          for port, k in self.stores]
 
+    def _early_line(self, item: tuple, place) -> str:
+        if item[0] == "line":
+            return item[1]
+        if item[0] == "lane":
+            return f"{place(item[1], item[2])} = {item[3]}[{item[4]}];"
+        return f"*({self.vtype}_unaligned *)&{place(item[1], item[2])} = {item[3]};"
+
     def lines(self, chunk: LoweredChunk, scalar_lines: list[str], place) -> list[str]:
         """The chunk in both forms: the vector statement, the lanes read one by one and
         the vector stores of outputs it completes, else ``scalar_lines`` (its live lanes'
@@ -363,9 +378,7 @@ class ChunkPrinter:
         return ([OPEN, *self.expressions[chunk.targets[0]]]
                 + [f"const {real} {t} = {name}[{k}];" for k, t in enumerate(chunk.targets)
                    if t in self.vector_alias]
-                + [item[1] if item[0] == "line" else
-                   f"*({self.vtype}_unaligned *)&{place(item[1], item[2])} = {item[3]};"
-                   for item in self.early.get(chunk.targets[0], ())]
+                + [self._early_line(item, place) for item in self.early.get(chunk.targets[0], ())]
                 + [ELSE] + scalar_lines
                 + [f"{place(port, k)} = {t};" for t in chunk.targets
                    for port, k in self.scalar_stores.get(t, ())] + [CLOSE])

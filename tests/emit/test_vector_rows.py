@@ -13,6 +13,7 @@ lane), and the refusals."""
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -36,6 +37,7 @@ from derive.row_program import RowBuilder
 from derive.rows import VECTOR_LANES, LaneSum, chunk_bounds
 from derive.statements import Temporary
 
+ROOT = Path(__file__).resolve().parents[2]
 VECTOR, SCALAR = {"rows": "vector"}, {"rows": "scalar"}
 AGREEMENT = 1e-12
 """The vector form against the scalar form (the same algebra, rounded in another order),
@@ -178,6 +180,46 @@ def test_the_vector_branch_computes_its_scalar_lanes_bit_for_bit(cflags, tmp_pat
                     assert np.array_equal(np.asarray(got), np.asarray(expected)), function
                 P_new = np.asarray(a[1]).reshape(n, n)
                 assert np.array_equal(P_new, P_new.T), function
+
+
+def _vector_branch_writes(body: str, port: str) -> dict[int, int]:
+    """{entry: times written} of ``port`` in the vector form of a C function body: its
+    lines outside ``#else ... #endif`` (a vector store writes four entries)."""
+    written: dict[int, int] = {}
+    scalar = False
+    for line in body.splitlines():
+        text = line.strip()
+        if text in ("#else", "#endif"):
+            scalar = text == "#else"
+            continue
+        if scalar:
+            continue
+        found = re.match(rf"(\*\(derive_v[df]_unaligned \*\)&)?{port}\[(\d+)\] = ", text)
+        if found:
+            first = int(found[2])
+            for k in range(first, first + (VECTOR_LANES if found[1] else 1)):
+                written[k] = written.get(k, 0) + 1
+    return written
+
+
+@pytest.mark.parametrize("case", ["ins_fc24_eskf", "random n = 9"])
+def test_the_vector_form_writes_each_entry_of_P_new_once(case):
+    """A symmetric P_new of a size 4 does not divide: its 4 x 4 blocks go out as vector
+    stores (those below the diagonal as transpositions), and an entry of a run that a
+    block store covers in part is written alone, not again with the run's others."""
+    if case == "ins_fc24_eskf":
+        source, n = (ROOT / "generated" / case / "eskf.c").read_text(), 23
+        functions = ["ins_fc24_eskf_eskf_predict"]
+    else:
+        n = 9
+        source = render_filter(random_model(np.random.default_rng(3), n, 2, False), "ekf",
+                               "c", VECTOR)["ekf.c"]
+        functions = ["vec_ekf_predict", "vec_ekf_update_a"]
+    for function in functions:
+        written = _vector_branch_writes(c_function_body(source, function), "P_new")
+        assert sorted(written) == list(range(n * n)), function
+        assert set(written.values()) == {1}, (function, {k: v for k, v in written.items()
+                                                         if v > 1})
 
 
 def test_run_reads_the_upper_triangle_of_P0_only():
