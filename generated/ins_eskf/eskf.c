@@ -431,6 +431,7 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const double t218 = v_t217[1];
     const double t219 = v_t217[2];
     const double t220 = v_t217[3];
+    P_new[39] = v_t217[1];
     #else
     const double t218 = DERIVE_FMA(t71, P[174], DERIVE_FMA(t84, P[159], DERIVE_FMA(t75, P[144], DERIVE_FMA(t124, P[39], DERIVE_FMA(t123, P[24], t122*P[9])))));
     const double t219 = DERIVE_FMA(t71, P[175], DERIVE_FMA(t84, P[160], DERIVE_FMA(t75, P[145], DERIVE_FMA(t124, P[40], DERIVE_FMA(t123, P[25], t122*P[10])))));
@@ -491,6 +492,8 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const double t230 = v_t229[1];
     const double t231 = v_t229[2];
     const double t232 = v_t229[3];
+    P_new[54] = v_t229[1];
+    P_new[55] = v_t229[2];
     #else
     const double t230 = DERIVE_FMA(t186, P[219], DERIVE_FMA(t129, P[204], DERIVE_FMA(t128, P[189], DERIVE_FMA(t127, P[39], DERIVE_FMA(t126, P[24], DERIVE_FMA(t125, P[9], P[54]))))));
     const double t231 = DERIVE_FMA(t186, P[220], DERIVE_FMA(t129, P[205], DERIVE_FMA(t128, P[190], DERIVE_FMA(t127, P[40], DERIVE_FMA(t126, P[25], DERIVE_FMA(t125, P[10], P[55]))))));
@@ -585,6 +588,9 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const double t250 = v_t249[1];
     const double t251 = v_t249[2];
     const double t252 = v_t249[3];
+    P_new[72] = v_t249[1];
+    P_new[73] = v_t249[2];
+    P_new[74] = v_t249[3];
     *(derive_vd_unaligned *)&P_new[196] = ((derive_vd){t211, t223, t235, t251});
     #else
     const double t250 = DERIVE_FMA(t138, P[222], DERIVE_FMA(t137, P[207], DERIVE_FMA(t187, P[192], DERIVE_FMA(t135, P[42], DERIVE_FMA(t134, P[27], DERIVE_FMA(t133, P[12], P[72]))))));
@@ -660,6 +666,8 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const double t267 = v_t265[2];
     const double t268 = v_t265[3];
     *(derive_vd_unaligned *)&P_new[84] = ((derive_vd){t262, t263, t264, t266});
+    P_new[88] = v_t265[2];
+    P_new[89] = v_t265[3];
     *(derive_vd_unaligned *)&P_new[212] = ((derive_vd){t224, t236, t252, t268});
     #else
     const double t266 = DERIVE_FMA(t146, P[222], DERIVE_FMA(t188, P[207], DERIVE_FMA(t144, P[192], DERIVE_FMA(t143, P[42], DERIVE_FMA(t142, P[27], DERIVE_FMA(t141, P[12], P[87]))))));
@@ -717,6 +725,7 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const double t283 = v_t281[2];
     const double t284 = v_t281[3];
     *(derive_vd_unaligned *)&P_new[100] = ((derive_vd){t279, t280, t282, t283});
+    P_new[104] = v_t281[3];
     #else
     const double t282 = DERIVE_FMA(p[0], P[57], P[102]);
     const double t283 = DERIVE_FMA(p[0], P[58], P[103]);
@@ -879,10 +888,6 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const derive_vd v_t321_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t246, t262, t278, t294}), v_t321_2);
     const derive_vd v_t321_4 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t247, t263, t279, t295}), v_t321_3);
     const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){t76, t76, t76, t76}), ((derive_vd){t248, t264, t280, t296}), v_t321_4);
-    const double t322 = v_t321[1];
-    const double t323 = v_t321[2];
-    const double t324 = v_t321[3];
-    *(derive_vd_unaligned *)&P_new[72] = ((derive_vd){t250, t251, t252, t322});
     #else
     const double t321 = DERIVE_FMA(t76, t248, DERIVE_FMA(t73, t247, DERIVE_FMA(t71, t246, DERIVE_FMA(t117, t239, DERIVE_FMA(t116, t238, t115*t237)))));
     const double t322 = DERIVE_FMA(t76, t264, DERIVE_FMA(t73, t263, DERIVE_FMA(t71, t262, DERIVE_FMA(t117, t255, DERIVE_FMA(t116, t254, t115*t253)))));
@@ -908,11 +913,6 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const derive_vd v_t329_3 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){t246, t262, t278, t294}), v_t329_2);
     const derive_vd v_t329_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t247, t263, t279, t295}), v_t329_3);
     const derive_vd v_t329 = DERIVE_VFMA(((derive_vd){t83, t83, t83, t83}), ((derive_vd){t248, t264, t280, t296}), v_t329_4);
-    const double t329 = v_t329[0];
-    const double t330 = v_t329[1];
-    const double t331 = v_t329[2];
-    const double t332 = v_t329[3];
-    *(derive_vd_unaligned *)&P_new[88] = ((derive_vd){t267, t268, t323, t331});
     #else
     const double t329 = DERIVE_FMA(t83, t248, DERIVE_FMA(t71, t247, DERIVE_FMA(t77, t246, DERIVE_FMA(t121, t239, DERIVE_FMA(t120, t238, t118*t237)))));
     const double t330 = DERIVE_FMA(t83, t264, DERIVE_FMA(t71, t263, DERIVE_FMA(t77, t262, DERIVE_FMA(t121, t255, DERIVE_FMA(t120, t254, t118*t253)))));
@@ -937,11 +937,6 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const derive_vd v_t336_3 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t246, t262, t278, t294}), v_t336_2);
     const derive_vd v_t336_4 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t247, t263, t279, t295}), v_t336_3);
     const derive_vd v_t336 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t248, t264, t280, t296}), v_t336_4);
-    const double t336 = v_t336[0];
-    const double t337 = v_t336[1];
-    const double t338 = v_t336[2];
-    const double t339 = v_t336[3];
-    *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t284, t324, t332, t339});
     #else
     const double t336 = DERIVE_FMA(t71, t248, DERIVE_FMA(t84, t247, DERIVE_FMA(t75, t246, DERIVE_FMA(t124, t239, DERIVE_FMA(t123, t238, t122*t237)))));
     const double t337 = DERIVE_FMA(t71, t264, DERIVE_FMA(t84, t263, DERIVE_FMA(t75, t262, DERIVE_FMA(t124, t255, DERIVE_FMA(t123, t254, t122*t253)))));
@@ -966,10 +961,6 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const derive_vd v_t342_4 = DERIVE_VFMA(((derive_vd){t128, t128, t128, t128}), ((derive_vd){t250, t266, t282, t298}), v_t342_3);
     const derive_vd v_t342_5 = DERIVE_VFMA(((derive_vd){t129, t129, t129, t129}), ((derive_vd){t251, t267, t283, t299}), v_t342_4);
     const derive_vd v_t342 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){t252, t268, t284, t300}), v_t342_5);
-    const double t342 = v_t342[0];
-    const double t343 = v_t342[1];
-    const double t344 = v_t342[2];
-    const double t345 = v_t342[3];
     const derive_vd tr_v_t321_0 = __builtin_shufflevector(v_t321, v_t329, 0, 4, 2, 6);
     const derive_vd tr_v_t321_1 = __builtin_shufflevector(v_t321, v_t329, 1, 5, 3, 7);
     const derive_vd tr_v_t321_2 = __builtin_shufflevector(v_t336, v_t342, 0, 4, 2, 6);
@@ -1009,11 +1000,10 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     const derive_vd v_t347_4 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), ((derive_vd){t250, t266, t282, t298}), v_t347_3);
     const derive_vd v_t347_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t251, t267, t283, t299}), v_t347_4);
     const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t252, t268, t284, t300}), v_t347_5);
-    const double t348 = v_t347[1];
-    const double t349 = v_t347[2];
-    const double t350 = v_t347[3];
     *(derive_vd_unaligned *)&P_new[64] = v_t347;
-    *(derive_vd_unaligned *)&P_new[76] = ((derive_vd){t330, t337, t343, t348});
+    P_new[79] = v_t347[1];
+    P_new[94] = v_t347[2];
+    P_new[109] = v_t347[3];
     #else
     const double t347 = DERIVE_FMA(t138, t252, DERIVE_FMA(t137, t251, DERIVE_FMA(t187, t250, DERIVE_FMA(t135, t239, DERIVE_FMA(t134, t238, DERIVE_FMA(t133, t237, t175))) + t241)));
     const double t348 = DERIVE_FMA(t138, t268, DERIVE_FMA(t137, t267, DERIVE_FMA(t187, t266, DERIVE_FMA(t135, t255, DERIVE_FMA(t134, t254, DERIVE_FMA(t133, t253, t176))) + t257)));
@@ -1068,10 +1058,6 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     P_new[16] = t326;
     P_new[17] = t327;
     P_new[18] = t328;
-    P_new[19] = t329;
-    P_new[20] = t330;
-    P_new[21] = t331;
-    P_new[22] = t332;
     P_new[23] = t333;
     P_new[28] = t211;
     P_new[29] = t212;
@@ -1079,24 +1065,13 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     P_new[31] = t327;
     P_new[32] = t334;
     P_new[33] = t335;
-    P_new[34] = t336;
-    P_new[35] = t337;
-    P_new[36] = t338;
-    P_new[37] = t339;
     P_new[38] = t340;
-    P_new[39] = t218;
     P_new[44] = t224;
     P_new[45] = t320;
     P_new[46] = t328;
     P_new[47] = t335;
     P_new[48] = t341;
-    P_new[49] = t342;
-    P_new[50] = t343;
-    P_new[51] = t344;
-    P_new[52] = t345;
     P_new[53] = t346;
-    P_new[54] = t230;
-    P_new[55] = t231;
     P_new[68] = t351;
     P_new[69] = t246;
     P_new[70] = t247;
@@ -1105,16 +1080,11 @@ int ins_eskf_eskf_predict(const double *restrict x, const double *restrict P, co
     P_new[81] = t353;
     P_new[82] = t354;
     P_new[83] = t355;
-    P_new[92] = t338;
-    P_new[93] = t344;
-    P_new[94] = t349;
     P_new[95] = t353;
     P_new[96] = t356;
     P_new[97] = t357;
     P_new[98] = t358;
     P_new[99] = t278;
-    P_new[108] = t345;
-    P_new[109] = t350;
     P_new[110] = t354;
     P_new[111] = t357;
     P_new[112] = t359;

@@ -342,9 +342,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t195_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[219], P[220], P[221], P[222]}), v_t195_2);
     const derive_vd v_t195_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[242], P[243], P[244], P[245]}), v_t195_3);
     const derive_vd v_t195 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[265], P[266], P[267], P[268]}), v_t195_4);
-    const double t196 = v_t195[1];
-    const double t197 = v_t195[2];
-    const double t198 = v_t195[3];
     #else
     const double t195 = DERIVE_FMA(t175, P[265], DERIVE_FMA(t106, P[242], DERIVE_FMA(t71, P[219], DERIVE_FMA(t105, P[58], DERIVE_FMA(t104, P[35], t103*P[12])))));
     const double t196 = DERIVE_FMA(t175, P[266], DERIVE_FMA(t106, P[243], DERIVE_FMA(t71, P[220], DERIVE_FMA(t105, P[59], DERIVE_FMA(t104, P[36], t103*P[13])))));
@@ -366,9 +363,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t199_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[223], P[224], P[225], P[226]}), v_t199_2);
     const derive_vd v_t199_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[246], P[247], P[248], P[249]}), v_t199_3);
     const derive_vd v_t199 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[269], P[270], P[271], P[272]}), v_t199_4);
-    const double t200 = v_t199[1];
-    const double t201 = v_t199[2];
-    const double t202 = v_t199[3];
     #else
     const double t199 = DERIVE_FMA(t175, P[269], DERIVE_FMA(t106, P[246], DERIVE_FMA(t71, P[223], DERIVE_FMA(t105, P[62], DERIVE_FMA(t104, P[39], t103*P[16])))));
     const double t200 = DERIVE_FMA(t175, P[270], DERIVE_FMA(t106, P[247], DERIVE_FMA(t71, P[224], DERIVE_FMA(t105, P[63], DERIVE_FMA(t104, P[40], t103*P[17])))));
@@ -429,6 +423,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t212 = v_t211[1];
     const double t213 = v_t211[2];
     const double t214 = v_t211[3];
+    P_new[32] = v_t211[1];
+    P_new[33] = v_t211[2];
+    P_new[34] = v_t211[3];
     #else
     const double t212 = DERIVE_FMA(t114, P[262], DERIVE_FMA(t71, P[239], DERIVE_FMA(t176, P[216], DERIVE_FMA(t113, P[55], DERIVE_FMA(t112, P[32], t110*P[9])))));
     const double t213 = DERIVE_FMA(t114, P[263], DERIVE_FMA(t71, P[240], DERIVE_FMA(t176, P[217], DERIVE_FMA(t113, P[56], DERIVE_FMA(t112, P[33], t110*P[10])))));
@@ -447,11 +444,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t215_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){P[219], P[220], P[221], P[222]}), v_t215_2);
     const derive_vd v_t215_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[242], P[243], P[244], P[245]}), v_t215_3);
     const derive_vd v_t215 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){P[265], P[266], P[267], P[268]}), v_t215_4);
-    const double t215 = v_t215[0];
-    const double t216 = v_t215[1];
-    const double t217 = v_t215[2];
-    const double t218 = v_t215[3];
-    *(derive_vd_unaligned *)&P_new[32] = ((derive_vd){t212, t213, t214, t215});
     #else
     const double t215 = DERIVE_FMA(t114, P[265], DERIVE_FMA(t71, P[242], DERIVE_FMA(t176, P[219], DERIVE_FMA(t113, P[58], DERIVE_FMA(t112, P[35], t110*P[12])))));
     const double t216 = DERIVE_FMA(t114, P[266], DERIVE_FMA(t71, P[243], DERIVE_FMA(t176, P[220], DERIVE_FMA(t113, P[59], DERIVE_FMA(t112, P[36], t110*P[13])))));
@@ -473,11 +465,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t219_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){P[223], P[224], P[225], P[226]}), v_t219_2);
     const derive_vd v_t219_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[246], P[247], P[248], P[249]}), v_t219_3);
     const derive_vd v_t219 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){P[269], P[270], P[271], P[272]}), v_t219_4);
-    const double t219 = v_t219[0];
-    const double t220 = v_t219[1];
-    const double t221 = v_t219[2];
-    const double t222 = v_t219[3];
-    *(derive_vd_unaligned *)&P_new[36] = ((derive_vd){t216, t217, t218, t219});
     #else
     const double t219 = DERIVE_FMA(t114, P[269], DERIVE_FMA(t71, P[246], DERIVE_FMA(t176, P[223], DERIVE_FMA(t113, P[62], DERIVE_FMA(t112, P[39], t110*P[16])))));
     const double t220 = DERIVE_FMA(t114, P[270], DERIVE_FMA(t71, P[247], DERIVE_FMA(t176, P[224], DERIVE_FMA(t113, P[63], DERIVE_FMA(t112, P[40], t110*P[17])))));
@@ -502,7 +489,7 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t224 = v_t223[1];
     const double t225 = v_t223[2];
     const double t226 = v_t223[3];
-    *(derive_vd_unaligned *)&P_new[40] = ((derive_vd){t220, t221, t222, t224});
+    P_new[43] = v_t223[1];
     #else
     const double t224 = DERIVE_FMA(t114, P[273], DERIVE_FMA(t71, P[250], DERIVE_FMA(t176, P[227], DERIVE_FMA(t113, P[66], DERIVE_FMA(t112, P[43], t110*P[20])))));
     const double t225 = DERIVE_FMA(t114, P[274], DERIVE_FMA(t71, P[251], DERIVE_FMA(t176, P[228], DERIVE_FMA(t113, P[67], DERIVE_FMA(t112, P[44], t110*P[21])))));
@@ -539,6 +526,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t232 = v_t231[1];
     const double t233 = v_t231[2];
     const double t234 = v_t231[3];
+    P_new[55] = v_t231[1];
+    P_new[56] = v_t231[2];
+    P_new[57] = v_t231[3];
     #else
     const double t232 = DERIVE_FMA(t71, P[262], DERIVE_FMA(t177, P[239], DERIVE_FMA(t107, P[216], DERIVE_FMA(t118, P[55], DERIVE_FMA(t117, P[32], t116*P[9])))));
     const double t233 = DERIVE_FMA(t71, P[263], DERIVE_FMA(t177, P[240], DERIVE_FMA(t107, P[217], DERIVE_FMA(t118, P[56], DERIVE_FMA(t117, P[33], t116*P[10])))));
@@ -557,11 +547,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t235_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){P[219], P[220], P[221], P[222]}), v_t235_2);
     const derive_vd v_t235_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){P[242], P[243], P[244], P[245]}), v_t235_3);
     const derive_vd v_t235 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[265], P[266], P[267], P[268]}), v_t235_4);
-    const double t235 = v_t235[0];
-    const double t236 = v_t235[1];
-    const double t237 = v_t235[2];
-    const double t238 = v_t235[3];
-    *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t233, t234, t235, t236});
     #else
     const double t235 = DERIVE_FMA(t71, P[265], DERIVE_FMA(t177, P[242], DERIVE_FMA(t107, P[219], DERIVE_FMA(t118, P[58], DERIVE_FMA(t117, P[35], t116*P[12])))));
     const double t236 = DERIVE_FMA(t71, P[266], DERIVE_FMA(t177, P[243], DERIVE_FMA(t107, P[220], DERIVE_FMA(t118, P[59], DERIVE_FMA(t117, P[36], t116*P[13])))));
@@ -583,11 +568,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t239_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){P[223], P[224], P[225], P[226]}), v_t239_2);
     const derive_vd v_t239_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){P[246], P[247], P[248], P[249]}), v_t239_3);
     const derive_vd v_t239 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[269], P[270], P[271], P[272]}), v_t239_4);
-    const double t239 = v_t239[0];
-    const double t240 = v_t239[1];
-    const double t241 = v_t239[2];
-    const double t242 = v_t239[3];
-    *(derive_vd_unaligned *)&P_new[60] = ((derive_vd){t237, t238, t239, t240});
     #else
     const double t239 = DERIVE_FMA(t71, P[269], DERIVE_FMA(t177, P[246], DERIVE_FMA(t107, P[223], DERIVE_FMA(t118, P[62], DERIVE_FMA(t117, P[39], t116*P[16])))));
     const double t240 = DERIVE_FMA(t71, P[270], DERIVE_FMA(t177, P[247], DERIVE_FMA(t107, P[224], DERIVE_FMA(t118, P[63], DERIVE_FMA(t117, P[40], t116*P[17])))));
@@ -612,7 +592,8 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t244 = v_t243[1];
     const double t245 = v_t243[2];
     const double t246 = v_t243[3];
-    *(derive_vd_unaligned *)&P_new[64] = ((derive_vd){t241, t242, t244, t245});
+    P_new[66] = v_t243[1];
+    P_new[67] = v_t243[2];
     #else
     const double t244 = DERIVE_FMA(t71, P[273], DERIVE_FMA(t177, P[250], DERIVE_FMA(t107, P[227], DERIVE_FMA(t118, P[66], DERIVE_FMA(t117, P[43], t116*P[20])))));
     const double t245 = DERIVE_FMA(t71, P[274], DERIVE_FMA(t177, P[251], DERIVE_FMA(t107, P[228], DERIVE_FMA(t118, P[67], DERIVE_FMA(t117, P[44], t116*P[21])))));
@@ -651,6 +632,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t252 = v_t251[1];
     const double t253 = v_t251[2];
     const double t254 = v_t251[3];
+    P_new[78] = v_t251[1];
+    P_new[79] = v_t251[2];
+    P_new[80] = v_t251[3];
     #else
     const double t252 = DERIVE_FMA(t180, P[331], DERIVE_FMA(t179, P[308], DERIVE_FMA(t178, P[285], DERIVE_FMA(t121, P[55], DERIVE_FMA(t120, P[32], DERIVE_FMA(t119, P[9], P[78]))))));
     const double t253 = DERIVE_FMA(t180, P[332], DERIVE_FMA(t179, P[309], DERIVE_FMA(t178, P[286], DERIVE_FMA(t121, P[56], DERIVE_FMA(t120, P[33], DERIVE_FMA(t119, P[10], P[79]))))));
@@ -672,7 +656,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t255 = v_t255[0];
     const double t256 = v_t255[1];
     const double t257 = v_t255[2];
-    const double t258 = v_t255[3];
     const derive_vd tr_v_t195_0 = __builtin_shufflevector(v_t195, v_t215, 0, 4, 2, 6);
     const derive_vd tr_v_t195_1 = __builtin_shufflevector(v_t195, v_t215, 1, 5, 3, 7);
     const derive_vd tr_v_t195_2 = __builtin_shufflevector(v_t235, v_t255, 0, 4, 2, 6);
@@ -689,7 +672,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     *(derive_vd_unaligned *)&P_new[299] = tr_v_t195_c1;
     *(derive_vd_unaligned *)&P_new[322] = tr_v_t195_c2;
     *(derive_vd_unaligned *)&P_new[345] = tr_v_t195_c3;
-    *(derive_vd_unaligned *)&P_new[80] = ((derive_vd){t254, t255, t256, t257});
     #else
     const double t255 = DERIVE_FMA(t180, P[334], DERIVE_FMA(t179, P[311], DERIVE_FMA(t178, P[288], DERIVE_FMA(t121, P[58], DERIVE_FMA(t120, P[35], DERIVE_FMA(t119, P[12], P[81]))))));
     const double t256 = DERIVE_FMA(t180, P[335], DERIVE_FMA(t179, P[312], DERIVE_FMA(t178, P[289], DERIVE_FMA(t121, P[59], DERIVE_FMA(t120, P[36], DERIVE_FMA(t119, P[13], P[82]))))));
@@ -711,10 +693,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t259_3 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){P[292], P[293], P[294], P[295]}), v_t259_2);
     const derive_vd v_t259_4 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){P[315], P[316], P[317], P[318]}), v_t259_3);
     const derive_vd v_t259 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){P[338], P[339], P[340], P[341]}), v_t259_4);
-    const double t259 = v_t259[0];
-    const double t260 = v_t259[1];
-    const double t261 = v_t259[2];
-    const double t262 = v_t259[3];
     const derive_vd tr_v_t199_0 = __builtin_shufflevector(v_t199, v_t219, 0, 4, 2, 6);
     const derive_vd tr_v_t199_1 = __builtin_shufflevector(v_t199, v_t219, 1, 5, 3, 7);
     const derive_vd tr_v_t199_2 = __builtin_shufflevector(v_t239, v_t259, 0, 4, 2, 6);
@@ -731,7 +709,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     *(derive_vd_unaligned *)&P_new[391] = tr_v_t199_c1;
     *(derive_vd_unaligned *)&P_new[414] = tr_v_t199_c2;
     *(derive_vd_unaligned *)&P_new[437] = tr_v_t199_c3;
-    *(derive_vd_unaligned *)&P_new[84] = ((derive_vd){t258, t259, t260, t261});
     #else
     const double t259 = DERIVE_FMA(t180, P[338], DERIVE_FMA(t179, P[315], DERIVE_FMA(t178, P[292], DERIVE_FMA(t121, P[62], DERIVE_FMA(t120, P[39], DERIVE_FMA(t119, P[16], P[85]))))));
     const double t260 = DERIVE_FMA(t180, P[339], DERIVE_FMA(t179, P[316], DERIVE_FMA(t178, P[293], DERIVE_FMA(t121, P[63], DERIVE_FMA(t120, P[40], DERIVE_FMA(t119, P[17], P[86]))))));
@@ -756,7 +733,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t264 = v_t263[1];
     const double t265 = v_t263[2];
     const double t266 = v_t263[3];
-    *(derive_vd_unaligned *)&P_new[88] = ((derive_vd){t262, t264, t265, t266});
+    P_new[89] = v_t263[1];
+    P_new[90] = v_t263[2];
+    P_new[91] = v_t263[3];
     *(derive_vd_unaligned *)&P_new[460] = ((derive_vd){t204, t224, t244, t264});
     #else
     const double t264 = DERIVE_FMA(t180, P[342], DERIVE_FMA(t179, P[319], DERIVE_FMA(t178, P[296], DERIVE_FMA(t121, P[66], DERIVE_FMA(t120, P[43], DERIVE_FMA(t119, P[20], P[89]))))));
@@ -829,8 +808,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t279 = v_t279[0];
     const double t280 = v_t279[1];
     const double t281 = v_t279[2];
-    const double t282 = v_t279[3];
-    *(derive_vd_unaligned *)&P_new[300] = ((derive_vd){t216, t236, t256, t280});
     #else
     const double t279 = DERIVE_FMA(t183, P[334], DERIVE_FMA(t182, P[311], DERIVE_FMA(t181, P[288], DERIVE_FMA(t127, P[58], DERIVE_FMA(t126, P[35], DERIVE_FMA(t125, P[12], P[104]))))));
     const double t280 = DERIVE_FMA(t183, P[335], DERIVE_FMA(t182, P[312], DERIVE_FMA(t181, P[289], DERIVE_FMA(t127, P[59], DERIVE_FMA(t126, P[36], DERIVE_FMA(t125, P[13], P[105]))))));
@@ -852,10 +829,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t283_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[292], P[293], P[294], P[295]}), v_t283_2);
     const derive_vd v_t283_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[315], P[316], P[317], P[318]}), v_t283_3);
     const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[338], P[339], P[340], P[341]}), v_t283_4);
-    const double t284 = v_t283[1];
-    const double t285 = v_t283[2];
-    const double t286 = v_t283[3];
-    *(derive_vd_unaligned *)&P_new[392] = ((derive_vd){t220, t240, t260, t284});
     #else
     const double t283 = DERIVE_FMA(t183, P[338], DERIVE_FMA(t182, P[315], DERIVE_FMA(t181, P[292], DERIVE_FMA(t127, P[62], DERIVE_FMA(t126, P[39], DERIVE_FMA(t125, P[16], P[108]))))));
     const double t284 = DERIVE_FMA(t183, P[339], DERIVE_FMA(t182, P[316], DERIVE_FMA(t181, P[293], DERIVE_FMA(t127, P[63], DERIVE_FMA(t126, P[40], DERIVE_FMA(t125, P[17], P[109]))))));
@@ -880,6 +853,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t288 = v_t287[1];
     const double t289 = v_t287[2];
     const double t290 = v_t287[3];
+    P_new[112] = v_t287[1];
+    P_new[113] = v_t287[2];
+    P_new[114] = v_t287[3];
     *(derive_vd_unaligned *)&P_new[484] = ((derive_vd){t225, t245, t265, t289});
     #else
     const double t288 = DERIVE_FMA(t183, P[342], DERIVE_FMA(t182, P[319], DERIVE_FMA(t181, P[296], DERIVE_FMA(t127, P[66], DERIVE_FMA(t126, P[43], DERIVE_FMA(t125, P[20], P[112]))))));
@@ -932,6 +908,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t300 = v_t299[1];
     const double t301 = v_t299[2];
     const double t302 = v_t299[3];
+    P_new[124] = v_t299[1];
+    P_new[125] = v_t299[2];
+    P_new[126] = v_t299[3];
     *(derive_vd_unaligned *)&P_new[232] = ((derive_vd){t233, t253, t277, t301});
     #else
     const double t300 = DERIVE_FMA(t186, P[331], DERIVE_FMA(t185, P[308], DERIVE_FMA(t184, P[285], DERIVE_FMA(t133, P[55], DERIVE_FMA(t132, P[32], DERIVE_FMA(t131, P[9], P[124]))))));
@@ -954,9 +933,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t303 = v_t303[0];
     const double t304 = v_t303[1];
     const double t305 = v_t303[2];
-    const double t306 = v_t303[3];
-    *(derive_vd_unaligned *)&P_new[124] = ((derive_vd){t300, t301, t302, t303});
-    *(derive_vd_unaligned *)&P_new[324] = ((derive_vd){t237, t257, t281, t305});
     #else
     const double t303 = DERIVE_FMA(t186, P[334], DERIVE_FMA(t185, P[311], DERIVE_FMA(t184, P[288], DERIVE_FMA(t133, P[58], DERIVE_FMA(t132, P[35], DERIVE_FMA(t131, P[12], P[127]))))));
     const double t304 = DERIVE_FMA(t186, P[335], DERIVE_FMA(t185, P[312], DERIVE_FMA(t184, P[289], DERIVE_FMA(t133, P[59], DERIVE_FMA(t132, P[36], DERIVE_FMA(t131, P[13], P[128]))))));
@@ -978,12 +954,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t307_3 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), ((derive_vd){P[292], P[293], P[294], P[295]}), v_t307_2);
     const derive_vd v_t307_4 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), ((derive_vd){P[315], P[316], P[317], P[318]}), v_t307_3);
     const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[338], P[339], P[340], P[341]}), v_t307_4);
-    const double t307 = v_t307[0];
-    const double t308 = v_t307[1];
-    const double t309 = v_t307[2];
-    const double t310 = v_t307[3];
-    *(derive_vd_unaligned *)&P_new[128] = ((derive_vd){t304, t305, t306, t307});
-    *(derive_vd_unaligned *)&P_new[416] = ((derive_vd){t241, t261, t285, t309});
     #else
     const double t307 = DERIVE_FMA(t186, P[338], DERIVE_FMA(t185, P[315], DERIVE_FMA(t184, P[292], DERIVE_FMA(t133, P[62], DERIVE_FMA(t132, P[39], DERIVE_FMA(t131, P[16], P[131]))))));
     const double t308 = DERIVE_FMA(t186, P[339], DERIVE_FMA(t185, P[316], DERIVE_FMA(t184, P[293], DERIVE_FMA(t133, P[63], DERIVE_FMA(t132, P[40], DERIVE_FMA(t131, P[17], P[132]))))));
@@ -1008,7 +978,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t312 = v_t311[1];
     const double t313 = v_t311[2];
     const double t314 = v_t311[3];
-    *(derive_vd_unaligned *)&P_new[132] = ((derive_vd){t308, t309, t310, t312});
+    P_new[135] = v_t311[1];
+    P_new[136] = v_t311[2];
+    P_new[137] = v_t311[3];
     *(derive_vd_unaligned *)&P_new[508] = ((derive_vd){t246, t266, t290, t314});
     #else
     const double t312 = DERIVE_FMA(t186, P[342], DERIVE_FMA(t185, P[319], DERIVE_FMA(t184, P[296], DERIVE_FMA(t133, P[66], DERIVE_FMA(t132, P[43], DERIVE_FMA(t131, P[20], P[135]))))));
@@ -1048,6 +1020,8 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t324 = v_t323[1];
     const double t325 = v_t323[2];
     const double t326 = v_t323[3];
+    P_new[148] = v_t323[2];
+    P_new[149] = v_t323[3];
     *(derive_vd_unaligned *)&P_new[256] = ((derive_vd){t254, t278, t302, t326});
     #else
     const double t324 = DERIVE_FMA(p[0], P[78], P[147]);
@@ -1065,9 +1039,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t327 = v_t327[0];
     const double t328 = v_t327[1];
     const double t329 = v_t327[2];
-    const double t330 = v_t327[3];
-    *(derive_vd_unaligned *)&P_new[148] = ((derive_vd){t325, t326, t327, t328});
-    *(derive_vd_unaligned *)&P_new[348] = ((derive_vd){t258, t282, t306, t330});
     #else
     const double t327 = DERIVE_FMA(p[0], P[81], P[150]);
     const double t328 = DERIVE_FMA(p[0], P[82], P[151]);
@@ -1084,12 +1055,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t331 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[85], P[86], P[87], P[88]}), ((derive_vd){P[154], P[155], P[156], P[157]}));
-    const double t331 = v_t331[0];
-    const double t332 = v_t331[1];
-    const double t333 = v_t331[2];
-    const double t334 = v_t331[3];
-    *(derive_vd_unaligned *)&P_new[152] = ((derive_vd){t329, t330, t331, t332});
-    *(derive_vd_unaligned *)&P_new[440] = ((derive_vd){t262, t286, t310, t334});
     #else
     const double t331 = DERIVE_FMA(p[0], P[85], P[154]);
     const double t332 = DERIVE_FMA(p[0], P[86], P[155]);
@@ -1109,7 +1074,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t336 = v_t335[1];
     const double t337 = v_t335[2];
     const double t338 = v_t335[3];
-    *(derive_vd_unaligned *)&P_new[156] = ((derive_vd){t333, t334, t336, t337});
+    P_new[158] = v_t335[1];
+    P_new[159] = v_t335[2];
+    P_new[160] = v_t335[3];
     #else
     const double t336 = DERIVE_FMA(p[0], P[89], P[158]);
     const double t337 = DERIVE_FMA(p[0], P[90], P[159]);
@@ -1150,6 +1117,7 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t348 = v_t347[1];
     const double t349 = v_t347[2];
     const double t350 = v_t347[3];
+    P_new[172] = v_t347[3];
     #else
     const double t348 = DERIVE_FMA(p[0], P[101], P[170]);
     const double t349 = DERIVE_FMA(p[0], P[102], P[171]);
@@ -1166,7 +1134,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t351 = v_t351[0];
     const double t352 = v_t351[1];
     const double t353 = v_t351[2];
-    const double t354 = v_t351[3];
     const derive_vd tr_v_t279_0 = __builtin_shufflevector(v_t279, v_t303, 0, 4, 2, 6);
     const derive_vd tr_v_t279_1 = __builtin_shufflevector(v_t279, v_t303, 1, 5, 3, 7);
     const derive_vd tr_v_t279_2 = __builtin_shufflevector(v_t327, v_t351, 0, 4, 2, 6);
@@ -1183,7 +1150,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     *(derive_vd_unaligned *)&P_new[303] = tr_v_t279_c1;
     *(derive_vd_unaligned *)&P_new[326] = tr_v_t279_c2;
     *(derive_vd_unaligned *)&P_new[349] = tr_v_t279_c3;
-    *(derive_vd_unaligned *)&P_new[172] = ((derive_vd){t350, t351, t352, t353});
     #else
     const double t351 = DERIVE_FMA(p[0], P[104], P[173]);
     const double t352 = DERIVE_FMA(p[0], P[105], P[174]);
@@ -1200,10 +1166,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t355 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[177], P[178], P[179], P[180]}));
-    const double t355 = v_t355[0];
-    const double t356 = v_t355[1];
-    const double t357 = v_t355[2];
-    const double t358 = v_t355[3];
     const derive_vd tr_v_t283_0 = __builtin_shufflevector(v_t283, v_t307, 0, 4, 2, 6);
     const derive_vd tr_v_t283_1 = __builtin_shufflevector(v_t283, v_t307, 1, 5, 3, 7);
     const derive_vd tr_v_t283_2 = __builtin_shufflevector(v_t331, v_t355, 0, 4, 2, 6);
@@ -1220,7 +1182,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     *(derive_vd_unaligned *)&P_new[395] = tr_v_t283_c1;
     *(derive_vd_unaligned *)&P_new[418] = tr_v_t283_c2;
     *(derive_vd_unaligned *)&P_new[441] = tr_v_t283_c3;
-    *(derive_vd_unaligned *)&P_new[176] = ((derive_vd){t354, t355, t356, t357});
     #else
     const double t355 = DERIVE_FMA(p[0], P[108], P[177]);
     const double t356 = DERIVE_FMA(p[0], P[109], P[178]);
@@ -1240,7 +1201,9 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t360 = v_t359[1];
     const double t361 = v_t359[2];
     const double t362 = v_t359[3];
-    *(derive_vd_unaligned *)&P_new[180] = ((derive_vd){t358, t360, t361, t362});
+    P_new[181] = v_t359[1];
+    P_new[182] = v_t359[2];
+    P_new[183] = v_t359[3];
     *(derive_vd_unaligned *)&P_new[464] = ((derive_vd){t288, t312, t336, t360});
     #else
     const double t360 = DERIVE_FMA(p[0], P[112], P[181]);
@@ -1301,9 +1264,10 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t375 = v_t375[0];
     const double t376 = v_t375[1];
     const double t377 = v_t375[2];
-    const double t378 = v_t375[3];
     *(derive_vd_unaligned *)&P_new[196] = v_t375;
-    *(derive_vd_unaligned *)&P_new[304] = ((derive_vd){t304, t328, t352, t376});
+    P_new[307] = v_t375[1];
+    P_new[330] = v_t375[2];
+    P_new[353] = v_t375[3];
     #else
     const double t375 = DERIVE_FMA(p[0], P[127], P[196]);
     const double t376 = DERIVE_FMA(p[0], P[128], P[197]);
@@ -1321,11 +1285,10 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     #if DERIVE_VECTOR
     const derive_vd v_t379 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[131], P[132], P[133], P[134]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
     const double t379 = v_t379[0];
-    const double t380 = v_t379[1];
-    const double t381 = v_t379[2];
-    const double t382 = v_t379[3];
     *(derive_vd_unaligned *)&P_new[200] = v_t379;
-    *(derive_vd_unaligned *)&P_new[396] = ((derive_vd){t308, t332, t356, t380});
+    P_new[399] = v_t379[1];
+    P_new[422] = v_t379[2];
+    P_new[445] = v_t379[3];
     #else
     const double t379 = DERIVE_FMA(p[0], P[131], P[200]);
     const double t380 = DERIVE_FMA(p[0], P[132], P[201]);
@@ -1390,10 +1353,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t276, t300, t324, t348}), v_t391_2);
     const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){t277, t301, t325, t349}), v_t391_3);
     const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){t278, t302, t326, t350}), v_t391_4);
-    const double t392 = v_t391[1];
-    const double t393 = v_t391[2];
-    const double t394 = v_t391[3];
-    *(derive_vd_unaligned *)&P_new[112] = ((derive_vd){t288, t289, t290, t392});
     #else
     const double t391 = DERIVE_FMA(t175, t278, DERIVE_FMA(t106, t277, DERIVE_FMA(t71, t276, DERIVE_FMA(t105, t269, DERIVE_FMA(t104, t268, t103*t267)))));
     const double t392 = DERIVE_FMA(t175, t302, DERIVE_FMA(t106, t301, DERIVE_FMA(t71, t300, DERIVE_FMA(t105, t293, DERIVE_FMA(t104, t292, t103*t291)))));
@@ -1419,11 +1378,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t399_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){t276, t300, t324, t348}), v_t399_2);
     const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t277, t301, t325, t349}), v_t399_3);
     const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){t278, t302, t326, t350}), v_t399_4);
-    const double t399 = v_t399[0];
-    const double t400 = v_t399[1];
-    const double t401 = v_t399[2];
-    const double t402 = v_t399[3];
-    *(derive_vd_unaligned *)&P_new[136] = ((derive_vd){t313, t314, t393, t401});
     #else
     const double t399 = DERIVE_FMA(t114, t278, DERIVE_FMA(t71, t277, DERIVE_FMA(t176, t276, DERIVE_FMA(t113, t269, DERIVE_FMA(t112, t268, t110*t267)))));
     const double t400 = DERIVE_FMA(t114, t302, DERIVE_FMA(t71, t301, DERIVE_FMA(t176, t300, DERIVE_FMA(t113, t293, DERIVE_FMA(t112, t292, t110*t291)))));
@@ -1448,11 +1402,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t406_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){t276, t300, t324, t348}), v_t406_2);
     const derive_vd v_t406_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){t277, t301, t325, t349}), v_t406_3);
     const derive_vd v_t406 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t278, t302, t326, t350}), v_t406_4);
-    const double t406 = v_t406[0];
-    const double t407 = v_t406[1];
-    const double t408 = v_t406[2];
-    const double t409 = v_t406[3];
-    *(derive_vd_unaligned *)&P_new[160] = ((derive_vd){t338, t394, t402, t409});
     #else
     const double t406 = DERIVE_FMA(t71, t278, DERIVE_FMA(t177, t277, DERIVE_FMA(t107, t276, DERIVE_FMA(t118, t269, DERIVE_FMA(t117, t268, t116*t267)))));
     const double t407 = DERIVE_FMA(t71, t302, DERIVE_FMA(t177, t301, DERIVE_FMA(t107, t300, DERIVE_FMA(t118, t293, DERIVE_FMA(t117, t292, t116*t291)))));
@@ -1477,10 +1426,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t412_4 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){t279, t303, t327, t351}), v_t412_3);
     const derive_vd v_t412_5 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){t280, t304, t328, t352}), v_t412_4);
     const derive_vd v_t412 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){t281, t305, t329, t353}), v_t412_5);
-    const double t412 = v_t412[0];
-    const double t413 = v_t412[1];
-    const double t414 = v_t412[2];
-    const double t415 = v_t412[3];
     const derive_vd tr_v_t391_0 = __builtin_shufflevector(v_t391, v_t399, 0, 4, 2, 6);
     const derive_vd tr_v_t391_1 = __builtin_shufflevector(v_t391, v_t399, 1, 5, 3, 7);
     const derive_vd tr_v_t391_2 = __builtin_shufflevector(v_t406, v_t412, 0, 4, 2, 6);
@@ -1520,11 +1465,10 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t417_4 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){t279, t303, t327, t351}), v_t417_3);
     const derive_vd v_t417_5 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){t280, t304, t328, t352}), v_t417_4);
     const derive_vd v_t417 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){t281, t305, t329, t353}), v_t417_5);
-    const double t418 = v_t417[1];
-    const double t419 = v_t417[2];
-    const double t420 = v_t417[3];
     *(derive_vd_unaligned *)&P_new[96] = v_t417;
-    *(derive_vd_unaligned *)&P_new[116] = ((derive_vd){t400, t407, t413, t418});
+    P_new[119] = v_t417[1];
+    P_new[142] = v_t417[2];
+    P_new[165] = v_t417[3];
     #else
     const double t417 = DERIVE_FMA(t183, t281, DERIVE_FMA(t182, t280, DERIVE_FMA(t181, t279, DERIVE_FMA(t127, t269, DERIVE_FMA(t126, t268, DERIVE_FMA(t125, t267, t163))) + t271)));
     const double t418 = DERIVE_FMA(t183, t305, DERIVE_FMA(t182, t304, DERIVE_FMA(t181, t303, DERIVE_FMA(t127, t293, DERIVE_FMA(t126, t292, DERIVE_FMA(t125, t291, t164))) + t295)));
@@ -1595,10 +1539,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[24] = t396;
     P_new[25] = t397;
     P_new[26] = t398;
-    P_new[27] = t399;
-    P_new[28] = t400;
-    P_new[29] = t401;
-    P_new[30] = t402;
     P_new[31] = t403;
     P_new[44] = t225;
     P_new[45] = t226;
@@ -1606,24 +1546,13 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[47] = t397;
     P_new[48] = t404;
     P_new[49] = t405;
-    P_new[50] = t406;
-    P_new[51] = t407;
-    P_new[52] = t408;
-    P_new[53] = t409;
     P_new[54] = t410;
-    P_new[55] = t232;
     P_new[68] = t246;
     P_new[69] = t390;
     P_new[70] = t398;
     P_new[71] = t405;
     P_new[72] = t411;
-    P_new[73] = t412;
-    P_new[74] = t413;
-    P_new[75] = t414;
-    P_new[76] = t415;
     P_new[77] = t416;
-    P_new[78] = t252;
-    P_new[79] = t253;
     P_new[100] = t421;
     P_new[101] = t276;
     P_new[102] = t277;
@@ -1632,16 +1561,11 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[121] = t423;
     P_new[122] = t424;
     P_new[123] = t425;
-    P_new[140] = t408;
-    P_new[141] = t414;
-    P_new[142] = t419;
     P_new[143] = t423;
     P_new[144] = t426;
     P_new[145] = t427;
     P_new[146] = t428;
     P_new[147] = t324;
-    P_new[164] = t415;
-    P_new[165] = t420;
     P_new[166] = t424;
     P_new[167] = t427;
     P_new[168] = t429;
@@ -1727,7 +1651,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[296] = P[296];
     P_new[297] = P[297];
     P_new[298] = P[298];
-    P_new[299] = t196;
     P_new[308] = P[220];
     P_new[309] = P[243];
     P_new[310] = P[266];
@@ -1742,11 +1665,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[319] = P[319];
     P_new[320] = P[320];
     P_new[321] = P[321];
-    P_new[322] = t197;
-    P_new[323] = t217;
-    P_new[328] = t329;
-    P_new[329] = t353;
-    P_new[330] = t377;
     P_new[331] = P[221];
     P_new[332] = P[244];
     P_new[333] = P[267];
@@ -1761,11 +1679,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[342] = P[342];
     P_new[343] = P[343];
     P_new[344] = P[344];
-    P_new[345] = t198;
-    P_new[346] = t218;
-    P_new[347] = t238;
-    P_new[352] = t354;
-    P_new[353] = t378;
     P_new[354] = P[222];
     P_new[355] = P[245];
     P_new[356] = P[268];
@@ -1795,7 +1708,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[388] = P[388];
     P_new[389] = P[389];
     P_new[390] = P[390];
-    P_new[391] = t200;
     P_new[400] = P[224];
     P_new[401] = P[247];
     P_new[402] = P[270];
@@ -1810,11 +1722,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[411] = P[411];
     P_new[412] = P[412];
     P_new[413] = P[413];
-    P_new[414] = t201;
-    P_new[415] = t221;
-    P_new[420] = t333;
-    P_new[421] = t357;
-    P_new[422] = t381;
     P_new[423] = P[225];
     P_new[424] = P[248];
     P_new[425] = P[271];
@@ -1829,11 +1736,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[434] = P[434];
     P_new[435] = P[435];
     P_new[436] = P[436];
-    P_new[437] = t202;
-    P_new[438] = t222;
-    P_new[439] = t242;
-    P_new[444] = t358;
-    P_new[445] = t382;
     P_new[446] = P[226];
     P_new[447] = P[249];
     P_new[448] = P[272];
