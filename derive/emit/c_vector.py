@@ -272,40 +272,44 @@ class ChunkPrinter:
             return leaf.name if isinstance(leaf, Var) else None
 
         done: set[int] = set()
+        aligned = 4 * (n // 4)  # the columns of whole blocks; past them, a last block
         for bi in range(n // 4):
             rows = range(4 * bi, 4 * bi + 4)
-            for bj in range(bi, n // 4):
+            # the blocks' first columns: the aligned ones from the diagonal on, and where 4
+            # does not divide n the last four columns (the rows' overlapping last chunks,
+            # their lanes before `aligned` written already, with the same values)
+            starts = list(range(4 * bi, aligned, 4)) + (
+                [n - 4] if n % 4 and n - 4 >= 4 * bi + 3 else [])
+            for c in starts:
+                diagonal, last = c == 4 * bi, c % 4 != 0
                 # the chunk of each row that holds its lanes in the block, on and above the
                 # diagonal (those before it, in a diagonal block, are the mirror)
-                chunks = [self.chunk_lanes.get(self.first_lane.get(name(a, 4 * bj + r), ""))
-                          if bj == bi else self.chunk_lanes.get(self.first_lane.get(
-                              name(a, 4 * bj), "")) for r, a in enumerate(rows)]
+                chunks = [self.chunk_lanes.get(self.first_lane.get(
+                    name(a, c + (r if diagonal else 3 if last else 0)), ""))
+                          for r, a in enumerate(rows)]
                 if None in chunks or not all(
-                        name(a, 4 * bj + k) == (chunks[r][k] if bj > bi or k >= r
-                                                else chunks[k][r])
-                        and (bj == bi or name(4 * bj + k, a) == chunks[r][k])
+                        (a * n + c + k in done and (c + k) * n + a in done) if c + k < aligned
+                        and last else
+                        name(a, c + k) == (chunks[r][k] if not diagonal or k >= r
+                                           else chunks[k][r])
+                        and (diagonal or name(c + k, a) == chunks[r][k])
                         for r, a in enumerate(rows) for k in range(4)):
                     continue
-                vectors = [self.vectors[c] for c in chunks]
+                vectors = [self.vectors[chunk] for chunk in chunks]
                 columns, shuffles = self._transpose(vectors)
                 lines = [("line", line) for column, line in shuffles
-                         if bj > bi or column != columns[0]]  # a diagonal block's row 0: none
-                if bj == bi:
-                    for r, a in enumerate(rows):
-                        mask = ", ".join(str(4 + k if k < r else k) for k in range(4))
-                        vector = (vectors[r] if r == 0 else
-                                  f"__builtin_shufflevector({vectors[r]}, {columns[r]}, {mask})")
-                        lines.append(("store", port, a * n + 4 * bi, vector))
-                        done.update(range(a * n + 4 * bi, a * n + 4 * bi + 4))
-                else:
-                    for r, a in enumerate(rows):
-                        lines.append(("store", port, a * n + 4 * bj, vectors[r]))
-                        done.update(range(a * n + 4 * bj, a * n + 4 * bj + 4))
-                    for k in range(4):
-                        b = 4 * bj + k
-                        lines.append(("store", port, b * n + 4 * bi, columns[k]))
-                        done.update(range(b * n + 4 * bi, b * n + 4 * bi + 4))
-                self._after([lane for c in chunks for lane in c], lines)
+                         if not diagonal or column != columns[0]]  # a diagonal's row 0: none
+                stores = ([(a * n + c, (vectors[r] if r == 0 else
+                                        f"__builtin_shufflevector({vectors[r]}, {columns[r]}, "
+                                        + ", ".join(str(4 + k if k < r else k) for k in range(4))
+                                        + ")"))
+                           for r, a in enumerate(rows)] if diagonal else
+                          [(a * n + c, vectors[r]) for r, a in enumerate(rows)]
+                          + [((c + k) * n + 4 * bi, columns[k]) for k in range(4)])
+                for first, vector in stores:
+                    lines.append(("store", port, first, vector))
+                    done.update(range(first, first + 4))
+                self._after([lane for chunk in chunks for lane in chunk], lines)
         return done
 
     def _operand(self, leaves: tuple[Tree, ...]) -> str:

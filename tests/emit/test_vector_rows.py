@@ -205,8 +205,10 @@ def _vector_branch_writes(body: str, port: str) -> dict[int, int]:
 @pytest.mark.parametrize("case", ["ins_fc24_eskf", "random n = 9"])
 def test_the_vector_form_writes_each_entry_of_P_new_once(case):
     """A symmetric P_new of a size 4 does not divide: its 4 x 4 blocks go out as vector
-    stores (those below the diagonal as transpositions), and an entry of a run that a
-    block store covers in part is written alone, not again with the run's others."""
+    stores (those below the diagonal as transpositions), the last four columns' blocks as
+    well (the rows' overlapping last chunks), and an entry of a run that a block store
+    covers in part is written alone, not again with the run's others. Written twice: only
+    an entry in the columns or rows that the last blocks overlap (the same value)."""
     if case == "ins_fc24_eskf":
         source, n = (ROOT / "generated" / case / "eskf.c").read_text(), 23
         functions = ["ins_fc24_eskf_eskf_predict"]
@@ -218,8 +220,10 @@ def test_the_vector_form_writes_each_entry_of_P_new_once(case):
     for function in functions:
         written = _vector_branch_writes(c_function_body(source, function), "P_new")
         assert sorted(written) == list(range(n * n)), function
-        assert set(written.values()) == {1}, (function, {k: v for k, v in written.items()
-                                                         if v > 1})
+        overlap = range(n - 4, 4 * (n // 4))
+        twice = {divmod(k, n) for k, times in written.items() if times > 1}
+        assert set(written.values()) <= {1, 2}, function
+        assert all(i in overlap or j in overlap for i, j in twice), (function, twice)
 
 
 def test_run_reads_the_upper_triangle_of_P0_only():
