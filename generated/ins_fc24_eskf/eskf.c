@@ -384,9 +384,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t203_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[226], P[227], P[228], P[229]}), v_t203_2);
     const derive_vd v_t203_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){P[249], P[250], P[251], P[252]}), v_t203_3);
     const derive_vd v_t203 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t203_4);
-    const double t204 = v_t203[1];
-    const double t205 = v_t203[2];
-    const double t206 = v_t203[3];
     #else
     const double t204 = DERIVE_FMA(t175, P[273], DERIVE_FMA(t106, P[250], DERIVE_FMA(t71, P[227], DERIVE_FMA(t105, P[66], DERIVE_FMA(t104, P[43], t103*P[20])))));
     const double t205 = DERIVE_FMA(t175, P[274], DERIVE_FMA(t106, P[251], DERIVE_FMA(t71, P[228], DERIVE_FMA(t105, P[67], DERIVE_FMA(t104, P[44], t103*P[21])))));
@@ -486,10 +483,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t223_3 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), ((derive_vd){P[226], P[227], P[228], P[229]}), v_t223_2);
     const derive_vd v_t223_4 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[249], P[250], P[251], P[252]}), v_t223_3);
     const derive_vd v_t223 = DERIVE_VFMA(((derive_vd){t114, t114, t114, t114}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t223_4);
-    const double t224 = v_t223[1];
-    const double t225 = v_t223[2];
-    const double t226 = v_t223[3];
-    P_new[43] = v_t223[1];
     #else
     const double t224 = DERIVE_FMA(t114, P[273], DERIVE_FMA(t71, P[250], DERIVE_FMA(t176, P[227], DERIVE_FMA(t113, P[66], DERIVE_FMA(t112, P[43], t110*P[20])))));
     const double t225 = DERIVE_FMA(t114, P[274], DERIVE_FMA(t71, P[251], DERIVE_FMA(t176, P[228], DERIVE_FMA(t113, P[67], DERIVE_FMA(t112, P[44], t110*P[21])))));
@@ -589,11 +582,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t243_3 = DERIVE_VFMA(((derive_vd){t107, t107, t107, t107}), ((derive_vd){P[226], P[227], P[228], P[229]}), v_t243_2);
     const derive_vd v_t243_4 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), ((derive_vd){P[249], P[250], P[251], P[252]}), v_t243_3);
     const derive_vd v_t243 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t243_4);
-    const double t244 = v_t243[1];
-    const double t245 = v_t243[2];
-    const double t246 = v_t243[3];
-    P_new[66] = v_t243[1];
-    P_new[67] = v_t243[2];
     #else
     const double t244 = DERIVE_FMA(t71, P[273], DERIVE_FMA(t177, P[250], DERIVE_FMA(t107, P[227], DERIVE_FMA(t118, P[66], DERIVE_FMA(t117, P[43], t116*P[20])))));
     const double t245 = DERIVE_FMA(t71, P[274], DERIVE_FMA(t177, P[251], DERIVE_FMA(t107, P[228], DERIVE_FMA(t118, P[67], DERIVE_FMA(t117, P[44], t116*P[21])))));
@@ -730,13 +718,22 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t263_3 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), ((derive_vd){P[295], P[296], P[297], P[298]}), v_t263_2);
     const derive_vd v_t263_4 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), ((derive_vd){P[318], P[319], P[320], P[321]}), v_t263_3);
     const derive_vd v_t263 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), ((derive_vd){P[341], P[342], P[343], P[344]}), v_t263_4);
-    const double t264 = v_t263[1];
-    const double t265 = v_t263[2];
-    const double t266 = v_t263[3];
-    P_new[89] = v_t263[1];
-    P_new[90] = v_t263[2];
-    P_new[91] = v_t263[3];
-    *(derive_vd_unaligned *)&P_new[460] = ((derive_vd){t204, t224, t244, t264});
+    const derive_vd tr_v_t203_0 = __builtin_shufflevector(v_t203, v_t223, 0, 4, 2, 6);
+    const derive_vd tr_v_t203_1 = __builtin_shufflevector(v_t203, v_t223, 1, 5, 3, 7);
+    const derive_vd tr_v_t203_2 = __builtin_shufflevector(v_t243, v_t263, 0, 4, 2, 6);
+    const derive_vd tr_v_t203_3 = __builtin_shufflevector(v_t243, v_t263, 1, 5, 3, 7);
+    const derive_vd tr_v_t203_c0 = __builtin_shufflevector(tr_v_t203_0, tr_v_t203_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t203_c1 = __builtin_shufflevector(tr_v_t203_1, tr_v_t203_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t203_c2 = __builtin_shufflevector(tr_v_t203_0, tr_v_t203_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t203_c3 = __builtin_shufflevector(tr_v_t203_1, tr_v_t203_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[19] = v_t203;
+    *(derive_vd_unaligned *)&P_new[42] = v_t223;
+    *(derive_vd_unaligned *)&P_new[65] = v_t243;
+    *(derive_vd_unaligned *)&P_new[88] = v_t263;
+    *(derive_vd_unaligned *)&P_new[437] = tr_v_t203_c0;
+    *(derive_vd_unaligned *)&P_new[460] = tr_v_t203_c1;
+    *(derive_vd_unaligned *)&P_new[483] = tr_v_t203_c2;
+    *(derive_vd_unaligned *)&P_new[506] = tr_v_t203_c3;
     #else
     const double t264 = DERIVE_FMA(t180, P[342], DERIVE_FMA(t179, P[319], DERIVE_FMA(t178, P[296], DERIVE_FMA(t121, P[66], DERIVE_FMA(t120, P[43], DERIVE_FMA(t119, P[20], P[89]))))));
     const double t265 = DERIVE_FMA(t180, P[343], DERIVE_FMA(t179, P[320], DERIVE_FMA(t178, P[297], DERIVE_FMA(t121, P[67], DERIVE_FMA(t120, P[44], DERIVE_FMA(t119, P[21], P[90]))))));
@@ -850,13 +847,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t287_3 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), ((derive_vd){P[295], P[296], P[297], P[298]}), v_t287_2);
     const derive_vd v_t287_4 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), ((derive_vd){P[318], P[319], P[320], P[321]}), v_t287_3);
     const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), ((derive_vd){P[341], P[342], P[343], P[344]}), v_t287_4);
-    const double t288 = v_t287[1];
-    const double t289 = v_t287[2];
-    const double t290 = v_t287[3];
-    P_new[112] = v_t287[1];
-    P_new[113] = v_t287[2];
-    P_new[114] = v_t287[3];
-    *(derive_vd_unaligned *)&P_new[484] = ((derive_vd){t225, t245, t265, t289});
     #else
     const double t288 = DERIVE_FMA(t183, P[342], DERIVE_FMA(t182, P[319], DERIVE_FMA(t181, P[296], DERIVE_FMA(t127, P[66], DERIVE_FMA(t126, P[43], DERIVE_FMA(t125, P[20], P[112]))))));
     const double t289 = DERIVE_FMA(t183, P[343], DERIVE_FMA(t182, P[320], DERIVE_FMA(t181, P[297], DERIVE_FMA(t127, P[67], DERIVE_FMA(t126, P[44], DERIVE_FMA(t125, P[21], P[113]))))));
@@ -975,13 +965,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t311_3 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), ((derive_vd){P[295], P[296], P[297], P[298]}), v_t311_2);
     const derive_vd v_t311_4 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), ((derive_vd){P[318], P[319], P[320], P[321]}), v_t311_3);
     const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), ((derive_vd){P[341], P[342], P[343], P[344]}), v_t311_4);
-    const double t312 = v_t311[1];
-    const double t313 = v_t311[2];
-    const double t314 = v_t311[3];
-    P_new[135] = v_t311[1];
-    P_new[136] = v_t311[2];
-    P_new[137] = v_t311[3];
-    *(derive_vd_unaligned *)&P_new[508] = ((derive_vd){t246, t266, t290, t314});
     #else
     const double t312 = DERIVE_FMA(t186, P[342], DERIVE_FMA(t185, P[319], DERIVE_FMA(t184, P[296], DERIVE_FMA(t133, P[66], DERIVE_FMA(t132, P[43], DERIVE_FMA(t131, P[20], P[135]))))));
     const double t313 = DERIVE_FMA(t186, P[343], DERIVE_FMA(t185, P[320], DERIVE_FMA(t184, P[297], DERIVE_FMA(t133, P[67], DERIVE_FMA(t132, P[44], DERIVE_FMA(t131, P[21], P[136]))))));
@@ -1071,12 +1054,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t335 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[88], P[89], P[90], P[91]}), ((derive_vd){P[157], P[158], P[159], P[160]}));
-    const double t336 = v_t335[1];
-    const double t337 = v_t335[2];
-    const double t338 = v_t335[3];
-    P_new[158] = v_t335[1];
-    P_new[159] = v_t335[2];
-    P_new[160] = v_t335[3];
     #else
     const double t336 = DERIVE_FMA(p[0], P[89], P[158]);
     const double t337 = DERIVE_FMA(p[0], P[90], P[159]);
@@ -1198,13 +1175,22 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[111], P[112], P[113], P[114]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
-    const double t360 = v_t359[1];
-    const double t361 = v_t359[2];
-    const double t362 = v_t359[3];
-    P_new[181] = v_t359[1];
-    P_new[182] = v_t359[2];
-    P_new[183] = v_t359[3];
-    *(derive_vd_unaligned *)&P_new[464] = ((derive_vd){t288, t312, t336, t360});
+    const derive_vd tr_v_t287_0 = __builtin_shufflevector(v_t287, v_t311, 0, 4, 2, 6);
+    const derive_vd tr_v_t287_1 = __builtin_shufflevector(v_t287, v_t311, 1, 5, 3, 7);
+    const derive_vd tr_v_t287_2 = __builtin_shufflevector(v_t335, v_t359, 0, 4, 2, 6);
+    const derive_vd tr_v_t287_3 = __builtin_shufflevector(v_t335, v_t359, 1, 5, 3, 7);
+    const derive_vd tr_v_t287_c0 = __builtin_shufflevector(tr_v_t287_0, tr_v_t287_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t287_c1 = __builtin_shufflevector(tr_v_t287_1, tr_v_t287_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t287_c2 = __builtin_shufflevector(tr_v_t287_0, tr_v_t287_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t287_c3 = __builtin_shufflevector(tr_v_t287_1, tr_v_t287_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[111] = v_t287;
+    *(derive_vd_unaligned *)&P_new[134] = v_t311;
+    *(derive_vd_unaligned *)&P_new[157] = v_t335;
+    *(derive_vd_unaligned *)&P_new[180] = v_t359;
+    *(derive_vd_unaligned *)&P_new[441] = tr_v_t287_c0;
+    *(derive_vd_unaligned *)&P_new[464] = tr_v_t287_c1;
+    *(derive_vd_unaligned *)&P_new[487] = tr_v_t287_c2;
+    *(derive_vd_unaligned *)&P_new[510] = tr_v_t287_c3;
     #else
     const double t360 = DERIVE_FMA(p[0], P[112], P[181]);
     const double t361 = DERIVE_FMA(p[0], P[113], P[182]);
@@ -1309,7 +1295,8 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const double t385 = v_t383[2];
     const double t386 = v_t383[3];
     *(derive_vd_unaligned *)&P_new[204] = ((derive_vd){t384, t385, t386, t192});
-    *(derive_vd_unaligned *)&P_new[488] = ((derive_vd){t313, t337, t361, t385});
+    P_new[491] = v_t383[2];
+    P_new[514] = v_t383[3];
     #else
     const double t384 = DERIVE_FMA(p[0], P[135], P[204]);
     const double t385 = DERIVE_FMA(p[0], P[136], P[205]);
@@ -1328,11 +1315,10 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     const derive_vd v_t387_3 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t192, t212, t232, t252}), v_t387_2);
     const derive_vd v_t387_4 = DERIVE_VFMA(((derive_vd){t106, t106, t106, t106}), ((derive_vd){t193, t213, t233, t253}), v_t387_3);
     const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), ((derive_vd){t194, t214, t234, t254}), v_t387_4);
-    const double t388 = v_t387[1];
-    const double t389 = v_t387[2];
-    const double t390 = v_t387[3];
     *(derive_vd_unaligned *)&P_new[0] = v_t387;
-    *(derive_vd_unaligned *)&P_new[20] = ((derive_vd){t204, t205, t206, t388});
+    P_new[23] = v_t387[1];
+    P_new[46] = v_t387[2];
+    P_new[69] = v_t387[3];
     #else
     const double t387 = DERIVE_FMA(t175, t194, DERIVE_FMA(t106, t193, DERIVE_FMA(t71, t192, DERIVE_FMA(t105, t189, DERIVE_FMA(t104, t188, DERIVE_FMA(t103, t187, t153))))));
     const double t388 = DERIVE_FMA(t175, t214, DERIVE_FMA(t106, t213, DERIVE_FMA(t71, t212, DERIVE_FMA(t105, t209, DERIVE_FMA(t104, t208, DERIVE_FMA(t103, t207, t154))))));
@@ -1540,15 +1526,10 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[25] = t397;
     P_new[26] = t398;
     P_new[31] = t403;
-    P_new[44] = t225;
-    P_new[45] = t226;
-    P_new[46] = t389;
     P_new[47] = t397;
     P_new[48] = t404;
     P_new[49] = t405;
     P_new[54] = t410;
-    P_new[68] = t246;
-    P_new[69] = t390;
     P_new[70] = t398;
     P_new[71] = t405;
     P_new[72] = t411;
@@ -1765,7 +1746,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[480] = t443;
     P_new[481] = P[481];
     P_new[482] = P[482];
-    P_new[483] = t205;
     P_new[492] = P[228];
     P_new[493] = P[251];
     P_new[494] = P[274];
@@ -1780,11 +1760,6 @@ int ins_fc24_eskf_eskf_predict(const double *restrict x, const double *restrict 
     P_new[503] = P[481];
     P_new[504] = t444;
     P_new[505] = P[505];
-    P_new[506] = t206;
-    P_new[507] = t226;
-    P_new[512] = t338;
-    P_new[513] = t362;
-    P_new[514] = t386;
     P_new[515] = P[229];
     P_new[516] = P[252];
     P_new[517] = P[275];
