@@ -195,8 +195,10 @@ class ChunkPrinter:
                     self._after([v.name for v in run],
                                 [("store", port, first, self._operand(tuple(run)))])
                     continue
-                for k in left if len(left) < len(run) else ():
-                    # the entries a block store left: each a lane written after its chunk
+                if len(left) == len(run):  # no block store covers any of the run
+                    self.stores += [(port, k) for k in left]
+                    continue
+                for k in left:  # the entries block stores left: each a lane after its chunk
                     leaf = leaves[k]
                     if isinstance(leaf, Var) and leaf.name in self.order:
                         chunk = self.chunk_lanes[self.first_lane[leaf.name]]
@@ -204,8 +206,6 @@ class ChunkPrinter:
                                                    chunk.index(leaf.name))])
                     else:
                         self.stores.append((port, k))
-                if len(left) == len(run):
-                    self.stores += [(port, k) for k in left]
         # the scalar form writes an output entry that is a chunk's lane right after the
         # lane's statement (at the end, every entry would stay live to the end of the
         # function: ins_fc24's update_baro spilled 300 of them)

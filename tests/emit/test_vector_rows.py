@@ -157,12 +157,15 @@ def test_unit_rows_of_either_sign_and_a_state_measured_twice():
 def test_the_vector_branch_computes_its_scalar_lanes_bit_for_bit(cflags, tmp_path):
     """The same file built with DERIVE_VECTOR 1 and 0: identical bits, P_new exactly
     symmetric (the lower triangle written by transposition), on the catalog's INS/GNSS EKF
-    (which declares rows = vector) and a random model whose length 4 does not divide (its
-    last chunk overlaps the one before)."""
+    (which declares rows = vector) and random models whose length 4 does not divide (its
+    last chunk overlaps the one before; at 9 states P_new's last four columns go out as
+    blocks whose first lanes an earlier block wrote)."""
     rng = np.random.default_rng(7)
     dt = (np.array([0.01]),)
     cases = [("ins_gnss", {}, 16, 6, "update_gnss", 6, dt),
-             (random_model(rng, 7, 3, correlated=True), VECTOR, 7, 2, "update_a", 3, ())]
+             (random_model(rng, 7, 3, correlated=True), VECTOR, 7, 2, "update_a", 3, ()),
+             (random_model(np.random.default_rng(3), 9, 2, correlated=False), VECTOR, 9, 2,
+              "update_a", 2, ())]
     for k, (model, options, n, nu, update, m, p) in enumerate(cases):
         vector, lanes = (load_generated(model, "ekf", options, "c", tmp_path / f"{k}{label}",
                                         extra_cflags=flags).c
