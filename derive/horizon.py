@@ -1,7 +1,8 @@
 """Constants of the filters with a horizon N: the FIR's order and taps, the N-step predictor.
 
-Plain NumPy on numeric arrays (SSPRED), from a stable steady-state transition A and
-gain B (or K). A bad FIR epsilon, norm or order, an unstable A, or a singular F where the
+NumPy arrays (SSPRED), from a stable steady-state transition A and gain B (or K); the
+constants written into generated code (the taps, A_N and B_N) are products and solves of
+derive.ieee_linalg, the same bits on every CPU. A bad FIR epsilon, norm or order, an unstable A, or a singular F where the
 prediction needs F^-(N-1) raises derive.errors.SteadyStateError.
 """
 
@@ -13,6 +14,8 @@ from typing import NamedTuple
 import numpy as np
 
 from derive.errors import SteadyStateError
+from derive.ieee_linalg import matmul as mm
+from derive.ieee_linalg import power, solve
 from derive.system_checks import check_stable, numeric_matrix
 
 MAX_ORDER = 100_000
@@ -110,7 +113,7 @@ def fir_taps(A, B, N: int) -> np.ndarray:
     taps = np.empty((int(N), *B.shape))
     taps[0] = B
     for i in range(1, int(N)):
-        taps[i] = A @ taps[i - 1]
+        taps[i] = mm(A, taps[i - 1])
     return taps
 
 
@@ -130,14 +133,14 @@ def pred_constants(F, K, H, N: int) -> PredictionConstants:
     K = numeric_matrix("K", K, F.shape[0], None)
     H = numeric_matrix("H", H, K.shape[1], F.shape[0])
     with np.errstate(over="ignore", invalid="ignore"):
-        FN = np.linalg.matrix_power(F, N)
-        back = np.linalg.matrix_power(F, N - 1)
+        FN = power(F, N)
+        back = power(F, N - 1)
     if not np.isfinite(FN).all():
         raise SteadyStateError(f"N-step prediction with N = {N} needs F^{N}, which overflows "
                                f"a double (spectral radius of F: "
                                f"{np.abs(np.linalg.eigvals(F)).max():.6g})")
     with np.errstate(over="ignore", invalid="ignore"):
-        left, gain = FN @ (np.eye(F.shape[0]) - K @ H), FN @ K
+        left, gain = mm(FN, np.eye(F.shape[0]) - mm(K, H)), mm(FN, K)
     if not (np.isfinite(left).all() and np.isfinite(gain).all()):
         raise SteadyStateError(f"N-step prediction with N = {N}: F^{N} (I - K H) or F^{N} K "
                                "overflows a double")
@@ -147,7 +150,7 @@ def pred_constants(F, K, H, N: int) -> PredictionConstants:
         raise SteadyStateError(
             f"N-step prediction with N = {N} needs F^-(N-1), but F is singular or "
             f"ill-conditioned (cond(F^{N - 1}) = {np.linalg.cond(back):.3g})")
-    return PredictionConstants(np.linalg.solve(back.T, left.T).T, gain)
+    return PredictionConstants(solve(back.T, left.T).T, gain)
 
 
 __all__ = ["MAX_FIR_TAPS", "MAX_FIR_WINDOW", "MAX_HORIZON", "MAX_ORDER", "FirOrderError",

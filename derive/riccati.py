@@ -1,8 +1,9 @@
 """Riccati equations of the KF (REKF) and LF (RELF), solved per step and by doubling.
 
-Plain NumPy on numeric arrays (the equations of MPT3D and SSPRED): the LF's off-line
+NumPy arrays, their products and solves by derive.ieee_linalg (the same bits on every
+CPU, so the constants written into generated code are too): the LF's off-line
 constants, the per-step recursions, structure-preserving doubling, and the steady-state
-gains of the SSKF and SSLF.
+gains of the SSKF and SSLF (the equations of MPT3D and SSPRED).
 Every solver first checks the model (derive.system_checks: detectable and stabilisable);
 a failed check or a failed convergence raises derive.errors.SteadyStateError.
 
@@ -17,6 +18,8 @@ from typing import NamedTuple
 import numpy as np
 
 from derive.errors import ModelError, SteadyStateError
+from derive.ieee_linalg import inverse, solve
+from derive.ieee_linalg import matmul as mm
 from derive.system_checks import check_stable, check_steady_state, system_arrays
 
 DEFAULT_TOL = 1e-13
@@ -42,13 +45,13 @@ def lf_constants(F, G, H, Q, R) -> LainiotisConstants:
     """A = [H GQGᵀ Hᵀ + R]⁻¹, Kn = GQGᵀHᵀA, Km = FᵀHᵀA, Pn = GQGᵀ − Kn H GQGᵀ,
     Fn = F − Kn H F, On = FᵀHᵀ A H F."""
     F, G, H, Q, R = system_arrays(F, G, H, Q, R)
-    GQG = G @ Q @ G.T
-    A = np.linalg.inv(H @ GQG @ H.T + R)
-    Kn = GQG @ H.T @ A
-    Km = F.T @ H.T @ A
-    Pn = GQG - Kn @ H @ GQG
-    Fn = F - Kn @ H @ F
-    On = F.T @ H.T @ A @ H @ F
+    GQG = mm(G, Q, G.T)
+    A = inverse(mm(H, GQG, H.T) + R)
+    Kn = mm(GQG, H.T, A)
+    Km = mm(F.T, H.T, A)
+    Pn = GQG - mm(Kn, H, GQG)
+    Fn = F - mm(Kn, H, F)
+    On = mm(F.T, H.T, A, H, F)
     return LainiotisConstants(A, Kn, Km, Pn, Fn, On)
 
 
@@ -77,12 +80,12 @@ def rekf_iterate(F, G, H, Q, R, P0=None, tol: float = DEFAULT_TOL,
     0) until the relative change is <= tol."""
     check_steady_state(F, G, H, Q, R)
     F, G, H, Q, R = system_arrays(F, G, H, Q, R)
-    GQG = G @ Q @ G.T
+    GQG = mm(G, Q, G.T)
 
     def step(P):
-        FP = F @ P
-        S = H @ P @ H.T + R
-        return GQG + FP @ F.T - FP @ H.T @ np.linalg.solve(S, H @ P @ F.T)
+        FP = mm(F, P)
+        S = mm(H, P, H.T) + R
+        return GQG + mm(FP, F.T) - mm(FP, H.T, solve(S, mm(H, P, F.T)))
 
     P0 = np.zeros_like(F) if P0 is None else np.asarray(P0, dtype=float)
     return _iterate(step, P0, tol, max_iter, "REKF iteration")
@@ -96,7 +99,7 @@ def relf_iterate(F, G, H, Q, R, P0=None, tol: float = DEFAULT_TOL,
     eye = np.eye(c.Fn.shape[0])
 
     def step(P):
-        return c.Pn + c.Fn @ np.linalg.solve(eye + P @ c.On, P) @ c.Fn.T
+        return c.Pn + mm(c.Fn, solve(eye + mm(P, c.On), P), c.Fn.T)
 
     P0 = np.zeros_like(c.Fn) if P0 is None else np.asarray(P0, dtype=float)
     return _iterate(step, P0, tol, max_iter, "RELF iteration")
@@ -108,15 +111,15 @@ def doubling(A, Gd, Hd, tol: float = DEFAULT_TOL, max_iter: int = MAX_DOUBLINGS)
     A, Gd, Hd = (np.asarray(M, dtype=float) for M in (A, Gd, Hd))
     eye = np.eye(A.shape[0])
     for _ in range(max_iter):
-        W = eye + Gd @ Hd
+        W = eye + mm(Gd, Hd)
         try:
-            WA = np.linalg.solve(W, A)
-            WG = np.linalg.solve(W, Gd)
+            WA = solve(W, A)
+            WG = solve(W, Gd)
         except np.linalg.LinAlgError as exc:
             raise SteadyStateError(f"doubling failed: I + G H singular ({exc})") from exc
-        H_next = Hd + A.T @ Hd @ WA
-        G_next = Gd + A @ WG @ A.T
-        A = A @ WA
+        H_next = Hd + mm(A.T, Hd, WA)
+        G_next = Gd + mm(A, WG, A.T)
+        A = mm(A, WA)
         H_next, Gd = (H_next + H_next.T) / 2, (G_next + G_next.T) / 2
         if not np.all(np.isfinite(H_next)):
             raise SteadyStateError("doubling diverged (non-finite X)")
@@ -131,7 +134,7 @@ def rekf_doubling(F, G, H, Q, R, tol: float = DEFAULT_TOL) -> np.ndarray:
     """Pp of the REKF by doubling: A = Fᵀ, Gd = Hᵀ R⁻¹ H, Hd = GQGᵀ."""
     check_steady_state(F, G, H, Q, R)
     F, G, H, Q, R = system_arrays(F, G, H, Q, R)
-    return doubling(F.T, H.T @ np.linalg.solve(R, H), G @ Q @ G.T, tol)
+    return doubling(F.T, mm(H.T, solve(R, H)), mm(G, Q, G.T), tol)
 
 
 def relf_doubling(F, G, H, Q, R, tol: float = DEFAULT_TOL) -> np.ndarray:
@@ -172,26 +175,26 @@ def _check_method(method: str) -> None:
 def kf_steady(F, G, H, Q, R, method: str = "doubling") -> KalmanSteadyState:
     """Steady-state KF: Pp from the REKF, K = Pp Hᵀ[H Pp Hᵀ + R]⁻¹, Pe = (I − KH)Pp."""
     _check_method(method)
-    solve = rekf_doubling if method == "doubling" else rekf_iterate
-    Pp = solve(F, G, H, Q, R)
+    riccati = rekf_doubling if method == "doubling" else rekf_iterate
+    Pp = riccati(F, G, H, Q, R)
     F, G, H, Q, R = system_arrays(F, G, H, Q, R)
-    K = np.linalg.solve(H @ Pp @ H.T + R, H @ Pp).T
-    IKH = np.eye(F.shape[0]) - K @ H
-    A = IKH @ F
+    K = solve(mm(H, Pp, H.T) + R, mm(H, Pp)).T
+    IKH = np.eye(F.shape[0]) - mm(K, H)
+    A = mm(IKH, F)
     check_stable(A, "A_KF = (I - K H) F")
-    Pe = IKH @ Pp
+    Pe = mm(IKH, Pp)
     return KalmanSteadyState(Pp, (Pe + Pe.T) / 2, K, A, K)
 
 
 def lf_steady(F, G, H, Q, R, method: str = "doubling") -> LainiotisSteadyState:
     """Steady-state LF: Pe from the RELF, A_LF = Fn[I + Pe On]⁻¹, B_LF = Kn + A_LF Pe Km."""
     _check_method(method)
-    solve = relf_doubling if method == "doubling" else relf_iterate
-    Pe = solve(F, G, H, Q, R)
+    riccati = relf_doubling if method == "doubling" else relf_iterate
+    Pe = riccati(F, G, H, Q, R)
     c = lf_constants(F, G, H, Q, R)
-    A = np.linalg.solve((np.eye(c.Fn.shape[0]) + Pe @ c.On).T, c.Fn.T).T
+    A = solve((np.eye(c.Fn.shape[0]) + mm(Pe, c.On)).T, c.Fn.T).T
     check_stable(A, "A_LF = Fn [I + Pe On]^-1")
-    return LainiotisSteadyState(A, c.Kn + A @ Pe @ c.Km, Pe)
+    return LainiotisSteadyState(A, c.Kn + mm(A, Pe, c.Km), Pe)
 
 
 __all__ = [

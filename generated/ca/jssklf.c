@@ -18,8 +18,8 @@
  *     step 1: measurement is NaN (filter jssklf takes no absent measurements)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 1, calls 0 (flops 21, instructions 13)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * A = [[ 0.2559986051046037 ,  0.25599860510460365,  0.12799930255230185], [-0.4879342145597783 ,  0.5120657854402215 ,  0.7560328927201108 ], [-0.15999956409459487, -0.15999956409459484,  0.9200002179527026 ]]
- * B = [[0.7440013948953963 ], [0.48793421455977826], [0.15999956409459481]]
+ * A = [[ 0.25599860510460354,  0.25599860510460354,  0.12799930255230177], [-0.48793421455977853,  0.5120657854402216 ,  0.7560328927201108 ], [-0.15999956409459487, -0.15999956409459484,  0.9200002179527027 ]]
+ * B = [[0.7440013948953965 ], [0.48793421455977837], [0.15999956409459487]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 2, calls 0 (flops 48, instructions 29)
  * derive-interface: {"functions":[["ca_jssklf_step","step",true,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_jssklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_jssklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter jssklf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
@@ -98,9 +98,9 @@
 DERIVE_INLINE int ca_jssklf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.12799930255230185, x[2 * s], DERIVE_FMA(0.25599860510460365, x[1 * s], DERIVE_FMA(0.2559986051046037, x[0], 0.7440013948953963*z[0])));
-    const double t1 = DERIVE_FMA(0.7560328927201108, x[2 * s], DERIVE_FMA(0.5120657854402215, x[1 * s], DERIVE_FMA((-0.4879342145597783), x[0], 0.48793421455977826*z[0])));
-    const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.15999956409459487), x[0], 0.15999956409459481*z[0])));
+    const double t0 = DERIVE_FMA(0.12799930255230177, x[2 * s], DERIVE_FMA(0.25599860510460354, x[1 * s], DERIVE_FMA(0.25599860510460354, x[0], 0.7440013948953965*z[0])));
+    const double t1 = DERIVE_FMA(0.7560328927201108, x[2 * s], DERIVE_FMA(0.5120657854402216, x[1 * s], DERIVE_FMA((-0.48793421455977853), x[0], 0.48793421455977837*z[0])));
+    const double t2 = DERIVE_FMA(0.9200002179527027, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.15999956409459487), x[0], 0.15999956409459487*z[0])));
     if (!((z[0] == z[0])) && !status) {
         status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
     }
@@ -113,9 +113,9 @@ DERIVE_INLINE int ca_jssklf_step_body(const double *restrict x, const double *re
 DERIVE_INLINE int ca_jssklf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.34407039510320986, x[2 * s], DERIVE_FMA(0.17614357999721234, x[1 * s], DERIVE_FMA((-0.07985502510739127), x[0], DERIVE_FMA(0.7440013948953963, zn[0], 0.33585363021199494*z[0]))));
-    const double t1 = DERIVE_FMA(1.0202337639562236, x[2 * s], DERIVE_FMA(0.01633595703200404, x[1 * s], DERIVE_FMA((-0.49572982840821744), x[0], DERIVE_FMA(0.48793421455977826, zn[0], 0.007795613848439064*z[0]))));
-    const double t2 = DERIVE_FMA(0.7049556351438465, x[2 * s], DERIVE_FMA((-0.27008960152311734), x[1 * s], DERIVE_FMA((-0.11009003742852257), x[0], DERIVE_FMA(0.15999956409459481, zn[0], (-0.049909526666072346)*z[0]))));
+    const double t0 = DERIVE_FMA(0.34407039510320964, x[2 * s], DERIVE_FMA(0.17614357999721225, x[1 * s], DERIVE_FMA((-0.07985502510739134), x[0], DERIVE_FMA(0.7440013948953965, zn[0], 0.3358536302119948*z[0]))));
+    const double t1 = DERIVE_FMA(1.0202337639562238, x[2 * s], DERIVE_FMA(0.01633595703200415, x[1 * s], DERIVE_FMA((-0.4957298284082176), x[0], DERIVE_FMA(0.48793421455977837, zn[0], 0.007795613848438943*z[0]))));
+    const double t2 = DERIVE_FMA(0.7049556351438467, x[2 * s], DERIVE_FMA((-0.2700896015231174), x[1 * s], DERIVE_FMA((-0.11009003742852252), x[0], DERIVE_FMA(0.15999956409459487, zn[0], (-0.049909526666072325)*z[0]))));
     if (!((zn[0] == zn[0])) && !status) {
         status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
     }

@@ -18,8 +18,8 @@
  * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 0, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 4, instructions 3)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 7, neg 0, cmp 1, calls 0 (flops 15, instructions 9)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * A_N = [[-0.31193539150247196,  1.                 ,  0.5                ], [-0.6479337786543731 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
- * B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
+ * A_N = [[-0.3119353915024723 ,  1.                 ,  0.5                ], [-0.6479337786543732 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
+ * B_N = [[1.3119353915024723 ], [0.6479337786543732 ], [0.15999956409459484]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 3, div 0, sqrt 0, fma 19, neg 0, cmp 2, calls 0 (flops 42, instructions 25)
@@ -63,8 +63,8 @@
 DERIVE_INLINE int ca_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.5, x[2 * s], DERIVE_FMA((-0.31193539150247196), x[0], DERIVE_FMA(1.311935391502472, z[0], x[1 * s])));
-    const double t1 = DERIVE_FMA((-0.6479337786543731), x[0], DERIVE_FMA(0.6479337786543731, z[0], x[1 * s] + x[2 * s]));
+    const double t0 = DERIVE_FMA(0.5, x[2 * s], DERIVE_FMA((-0.3119353915024723), x[0], DERIVE_FMA(1.3119353915024723, z[0], x[1 * s])));
+    const double t1 = DERIVE_FMA((-0.6479337786543732), x[0], DERIVE_FMA(0.6479337786543732, z[0], x[1 * s] + x[2 * s]));
     const double t2 = DERIVE_FMA((-0.15999956409459484), x[0], DERIVE_FMA(0.15999956409459484, z[0], x[2 * s]));
     if (!((z[0] == z[0])) && !status) {
         status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
@@ -78,9 +78,9 @@ DERIVE_INLINE int ca_pred_step_body(const double *restrict x, const double *rest
 DERIVE_INLINE int ca_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(1.344032304248764, x[2 * s], DERIVE_FMA(0.688064608497528, x[1 * s], DERIVE_FMA((-0.63062987222987), x[0], DERIVE_FMA(1.311935391502472, zn[0], 0.31869448072739803*z[0]))));
-    const double t1 = DERIVE_FMA(1.6760331106728135, x[2 * s], DERIVE_FMA(0.35206622134562693, x[1 * s], DERIVE_FMA((-0.6058198658367401), x[0], DERIVE_FMA(0.6479337786543731, zn[0], (-0.0421139128176331)*z[0]))));
-    const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.11009003742852254), x[0], DERIVE_FMA(0.15999956409459484, zn[0], (-0.04990952666607232)*z[0]))));
+    const double t0 = DERIVE_FMA(1.3440323042487639, x[2 * s], DERIVE_FMA(0.6880646084975277, x[1 * s], DERIVE_FMA((-0.63062987222987), x[0], DERIVE_FMA(1.3119353915024723, zn[0], 0.31869448072739764*z[0]))));
+    const double t1 = DERIVE_FMA(1.6760331106728135, x[2 * s], DERIVE_FMA(0.3520662213456268, x[1 * s], DERIVE_FMA((-0.6058198658367399), x[0], DERIVE_FMA(0.6479337786543732, zn[0], (-0.042113912817633284)*z[0]))));
+    const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.1100900374285225), x[0], DERIVE_FMA(0.15999956409459484, zn[0], (-0.04990952666607235)*z[0]))));
     if (!((zn[0] == zn[0])) && !status) {
         status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
     }

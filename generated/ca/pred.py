@@ -18,8 +18,8 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of init (Python): add 3, sub 0, mul 1, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of step (Python): add 5, sub 3, mul 7, div 0, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 15, instructions 16)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
-A_N = [[-0.31193539150247196,  1.                 ,  0.5                ], [-0.6479337786543731 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
-B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
+A_N = [[-0.3119353915024723 ,  1.                 ,  0.5                ], [-0.6479337786543732 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
+B_N = [[1.3119353915024723 ], [0.6479337786543732 ], [0.15999956409459484]]
 N = 1
 """
 
@@ -120,8 +120,8 @@ def step(x, z):
         x_new [3]: x(k+1/k)
     Raises NumericalError when a runtime check fails.
     """
-    t0 = x[1] - 0.31193539150247196*x[0] + 0.5*x[2] + 1.311935391502472*z[0]
-    t1 = x[1] - 0.6479337786543731*x[0] + x[2] + 0.6479337786543731*z[0]
+    t0 = x[1] - 0.3119353915024723*x[0] + 0.5*x[2] + 1.3119353915024723*z[0]
+    t1 = x[1] - 0.6479337786543732*x[0] + x[2] + 0.6479337786543732*z[0]
     t2 = x[2] - 0.15999956409459484*x[0] + 0.15999956409459484*z[0]
     _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (filter pred takes no absent measurements)')
     x_new = [t0, t1, t2]
@@ -153,8 +153,8 @@ def run(zs, x0):
         keep = rows.extend
         pack = struct.Struct("3d").pack
         for z_0 in array("d", zs.tobytes()):
-            t0 = x_1 - 0.31193539150247196*x_0 + 0.5*x_2 + 1.311935391502472*z_0
-            x_1 = x_1 - 0.6479337786543731*x_0 + x_2 + 0.6479337786543731*z_0
+            t0 = x_1 - 0.3119353915024723*x_0 + 0.5*x_2 + 1.3119353915024723*z_0
+            x_1 = x_1 - 0.6479337786543732*x_0 + x_2 + 0.6479337786543732*z_0
             x_2 = x_2 - 0.15999956409459484*x_0 + 0.15999956409459484*z_0
             if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
                 raise NumericalError(f"step {len(rows) // 24}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (filter pred takes no absent measurements)'))

@@ -18,8 +18,8 @@
  *     step 1: measurement is NaN (filter sskf takes no absent measurements)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 1, calls 0 (flops 21, instructions 13)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * A = [[ 0.2559986051046037 ,  0.2559986051046037 ,  0.12799930255230185], [-0.48793421455977826,  0.5120657854402217 ,  0.7560328927201109 ], [-0.15999956409459484, -0.15999956409459484,  0.9200002179527026 ]]
- * B = [[0.7440013948953963 ], [0.48793421455977826], [0.15999956409459484]]
+ * A = [[ 0.2559986051046035 ,  0.2559986051046035 ,  0.12799930255230174], [-0.48793421455977837,  0.5120657854402216 ,  0.7560328927201108 ], [-0.15999956409459484, -0.15999956409459484,  0.9200002179527026 ]]
+ * B = [[0.7440013948953965 ], [0.48793421455977837], [0.15999956409459484]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 2, calls 0 (flops 48, instructions 29)
  * derive-interface: {"functions":[["ca_sskf_step","step",true,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_sskf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_sskf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sskf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
@@ -98,8 +98,8 @@
 DERIVE_INLINE int ca_sskf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.12799930255230185, x[2 * s], DERIVE_FMA(0.2559986051046037, x[1 * s], DERIVE_FMA(0.2559986051046037, x[0], 0.7440013948953963*z[0])));
-    const double t1 = DERIVE_FMA(0.7560328927201109, x[2 * s], DERIVE_FMA(0.5120657854402217, x[1 * s], DERIVE_FMA((-0.48793421455977826), x[0], 0.48793421455977826*z[0])));
+    const double t0 = DERIVE_FMA(0.12799930255230174, x[2 * s], DERIVE_FMA(0.2559986051046035, x[1 * s], DERIVE_FMA(0.2559986051046035, x[0], 0.7440013948953965*z[0])));
+    const double t1 = DERIVE_FMA(0.7560328927201108, x[2 * s], DERIVE_FMA(0.5120657854402216, x[1 * s], DERIVE_FMA((-0.48793421455977837), x[0], 0.48793421455977837*z[0])));
     const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.15999956409459484), x[0], 0.15999956409459484*z[0])));
     if (!((z[0] == z[0])) && !status) {
         status = 1; /* measurement is NaN (filter sskf takes no absent measurements) */
@@ -113,9 +113,9 @@ DERIVE_INLINE int ca_sskf_step_body(const double *restrict x, const double *rest
 DERIVE_INLINE int ca_sskf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.3440703951032099, x[2 * s], DERIVE_FMA(0.17614357999721242, x[1 * s], DERIVE_FMA((-0.07985502510739127), x[0], DERIVE_FMA(0.7440013948953963, zn[0], 0.335853630211995*z[0]))));
-    const double t1 = DERIVE_FMA(1.0202337639562238, x[2 * s], DERIVE_FMA(0.016335957032004234, x[1 * s], DERIVE_FMA((-0.4957298284082175), x[0], DERIVE_FMA(0.48793421455977826, zn[0], 0.007795613848439252*z[0]))));
-    const double t2 = DERIVE_FMA(0.7049556351438465, x[2 * s], DERIVE_FMA((-0.2700896015231174), x[1 * s], DERIVE_FMA((-0.11009003742852254), x[0], DERIVE_FMA(0.15999956409459484, zn[0], (-0.0499095266660723)*z[0]))));
+    const double t0 = DERIVE_FMA(0.3440703951032096, x[2 * s], DERIVE_FMA(0.1761435799972122, x[1 * s], DERIVE_FMA((-0.07985502510739129), x[0], DERIVE_FMA(0.7440013948953965, zn[0], 0.33585363021199477*z[0]))));
+    const double t1 = DERIVE_FMA(1.0202337639562236, x[2 * s], DERIVE_FMA(0.01633595703200422, x[1 * s], DERIVE_FMA((-0.4957298284082174), x[0], DERIVE_FMA(0.48793421455977837, zn[0], 0.007795613848439045*z[0]))));
+    const double t2 = DERIVE_FMA(0.7049556351438465, x[2 * s], DERIVE_FMA((-0.27008960152311734), x[1 * s], DERIVE_FMA((-0.1100900374285225), x[0], DERIVE_FMA(0.15999956409459484, zn[0], (-0.04990952666607235)*z[0]))));
     if (!((zn[0] == zn[0])) && !status) {
         status = 1; /* measurement is NaN (filter sskf takes no absent measurements) */
     }

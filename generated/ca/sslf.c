@@ -18,8 +18,8 @@
  *     step 1: measurement is NaN (filter sslf takes no absent measurements)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 1, calls 0 (flops 21, instructions 13)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * A = [[ 0.25599860510460365,  0.2559986051046036 ,  0.12799930255230188], [-0.48793421455977837,  0.5120657854402214 ,  0.7560328927201108 ], [-0.1599995640945949 , -0.15999956409459484,  0.9200002179527026 ]]
- * B = [[0.7440013948953963 ], [0.4879342145597782 ], [0.15999956409459481]]
+ * A = [[ 0.2559986051046036 ,  0.2559986051046036 ,  0.1279993025523018 ], [-0.4879342145597787 ,  0.5120657854402216 ,  0.7560328927201109 ], [-0.15999956409459487, -0.15999956409459484,  0.9200002179527028 ]]
+ * B = [[0.7440013948953964 ], [0.48793421455977837], [0.15999956409459493]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 2, calls 0 (flops 48, instructions 29)
  * derive-interface: {"functions":[["ca_sslf_step","step",true,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_sslf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_sslf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sslf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
@@ -98,9 +98,9 @@
 DERIVE_INLINE int ca_sslf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.12799930255230188, x[2 * s], DERIVE_FMA(0.2559986051046036, x[1 * s], DERIVE_FMA(0.25599860510460365, x[0], 0.7440013948953963*z[0])));
-    const double t1 = DERIVE_FMA(0.7560328927201108, x[2 * s], DERIVE_FMA(0.5120657854402214, x[1 * s], DERIVE_FMA((-0.48793421455977837), x[0], 0.4879342145597782*z[0])));
-    const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.1599995640945949), x[0], 0.15999956409459481*z[0])));
+    const double t0 = DERIVE_FMA(0.1279993025523018, x[2 * s], DERIVE_FMA(0.2559986051046036, x[1 * s], DERIVE_FMA(0.2559986051046036, x[0], 0.7440013948953964*z[0])));
+    const double t1 = DERIVE_FMA(0.7560328927201109, x[2 * s], DERIVE_FMA(0.5120657854402216, x[1 * s], DERIVE_FMA((-0.4879342145597787), x[0], 0.48793421455977837*z[0])));
+    const double t2 = DERIVE_FMA(0.9200002179527028, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.15999956409459487), x[0], 0.15999956409459493*z[0])));
     if (!((z[0] == z[0])) && !status) {
         status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
     }
@@ -113,9 +113,9 @@ DERIVE_INLINE int ca_sslf_step_body(const double *restrict x, const double *rest
 DERIVE_INLINE int ca_sslf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.34407039510320986, x[2 * s], DERIVE_FMA(0.17614357999721225, x[1 * s], DERIVE_FMA((-0.07985502510739129), x[0], DERIVE_FMA(0.7440013948953963, zn[0], 0.3358536302119949*z[0]))));
-    const double t1 = DERIVE_FMA(1.0202337639562233, x[2 * s], DERIVE_FMA(0.016335957032003936, x[1 * s], DERIVE_FMA((-0.49572982840821744), x[0], DERIVE_FMA(0.4879342145597782, zn[0], 0.00779561384843894*z[0]))));
-    const double t2 = DERIVE_FMA(0.7049556351438465, x[2 * s], DERIVE_FMA((-0.27008960152311734), x[1 * s], DERIVE_FMA((-0.11009003742852258), x[0], DERIVE_FMA(0.15999956409459481, zn[0], (-0.04990952666607235)*z[0]))));
+    const double t0 = DERIVE_FMA(0.3440703951032098, x[2 * s], DERIVE_FMA(0.1761435799972123, x[1 * s], DERIVE_FMA((-0.07985502510739138), x[0], DERIVE_FMA(0.7440013948953964, zn[0], 0.3358536302119949*z[0]))));
+    const double t1 = DERIVE_FMA(1.020233763956224, x[2 * s], DERIVE_FMA(0.01633595703200406, x[1 * s], DERIVE_FMA((-0.4957298284082178), x[0], DERIVE_FMA(0.48793421455977837, zn[0], 0.007795613848438933*z[0]))));
+    const double t2 = DERIVE_FMA(0.704955635143847, x[2 * s], DERIVE_FMA((-0.2700896015231174), x[1 * s], DERIVE_FMA((-0.11009003742852252), x[0], DERIVE_FMA(0.15999956409459493, zn[0], (-0.04990952666607224)*z[0]))));
     if (!((zn[0] == zn[0])) && !status) {
         status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
     }

@@ -18,8 +18,8 @@
  *     step 1: measurement is NaN (filter jssklf takes no absent measurements)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 10, instructions 7)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * A = [[ 0.45147237290283504,  0.45147237290283504], [-0.21247879256594887,  0.7875212074340512 ]]
- * B = [[0.548527627097165 ], [0.2124787925659489]]
+ * A = [[ 0.45147237290283504,  0.45147237290283504], [-0.21247879256594882,  0.7875212074340512 ]]
+ * B = [[0.5485276270971651 ], [0.21247879256594887]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 24, instructions 16)
  * derive-interface: {"functions":[["cv_jssklf_step","step",true,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["cv_jssklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["cv_jssklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter jssklf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}

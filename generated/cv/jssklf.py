@@ -16,8 +16,8 @@ status (C return value; Python raises NumericalError): 0 success
     step 1: measurement is NaN (filter jssklf takes no absent measurements)
 operations per call of step (Python): add 3, sub 1, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 10, instructions 11)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
-A = [[ 0.45147237290283504,  0.45147237290283504], [-0.21247879256594887,  0.7875212074340512 ]]
-B = [[0.548527627097165 ], [0.2124787925659489]]
+A = [[ 0.45147237290283504,  0.45147237290283504], [-0.21247879256594882,  0.7875212074340512 ]]
+B = [[0.5485276270971651 ], [0.21247879256594887]]
 """
 
 import struct
@@ -103,8 +103,8 @@ def step(x, z):
         x_new [2]: x(k+1/k+1)
     Raises NumericalError when a runtime check fails.
     """
-    t0 = 0.45147237290283504*x[0] + 0.45147237290283504*x[1] + 0.548527627097165*z[0]
-    t1 = 0.7875212074340512*x[1] - 0.21247879256594887*x[0] + 0.2124787925659489*z[0]
+    t0 = 0.45147237290283504*x[0] + 0.45147237290283504*x[1] + 0.5485276270971651*z[0]
+    t1 = 0.7875212074340512*x[1] - 0.21247879256594882*x[0] + 0.21247879256594887*z[0]
     _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (filter jssklf takes no absent measurements)')
     x_new = [t0, t1]
     return x_new
@@ -134,8 +134,8 @@ def run(zs, x0):
         keep = rows.extend
         pack = struct.Struct("2d").pack
         for z_0 in array("d", zs.tobytes()):
-            t0 = 0.45147237290283504*x_0 + 0.45147237290283504*x_1 + 0.548527627097165*z_0
-            x_1 = 0.7875212074340512*x_1 - 0.21247879256594887*x_0 + 0.2124787925659489*z_0
+            t0 = 0.45147237290283504*x_0 + 0.45147237290283504*x_1 + 0.5485276270971651*z_0
+            x_1 = 0.7875212074340512*x_1 - 0.21247879256594882*x_0 + 0.21247879256594887*z_0
             if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
                 raise NumericalError(f"step {len(rows) // 16}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (filter jssklf takes no absent measurements)'))
             keep(pack(t0, x_1))

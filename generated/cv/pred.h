@@ -18,8 +18,8 @@
  * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 8, instructions 5)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * A_N = [[ 0.23899358033688614,  1.                 ], [-0.2124787925659489 ,  1.                 ]]
- * B_N = [[0.7610064196631139], [0.2124787925659489]]
+ * A_N = [[ 0.2389935803368862 ,  1.                 ], [-0.21247879256594884,  1.                 ]]
+ * B_N = [[0.7610064196631138 ], [0.21247879256594884]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 22, instructions 14)

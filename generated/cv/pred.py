@@ -18,8 +18,8 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of init (Python): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
 operations per call of step (Python): add 3, sub 1, mul 4, div 0, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 8, instructions 9)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
-A_N = [[ 0.23899358033688614,  1.                 ], [-0.2124787925659489 ,  1.                 ]]
-B_N = [[0.7610064196631139], [0.2124787925659489]]
+A_N = [[ 0.2389935803368862 ,  1.                 ], [-0.21247879256594884,  1.                 ]]
+B_N = [[0.7610064196631138 ], [0.21247879256594884]]
 N = 1
 """
 
@@ -119,8 +119,8 @@ def step(x, z):
         x_new [2]: x(k+1/k)
     Raises NumericalError when a runtime check fails.
     """
-    t0 = 0.23899358033688614*x[0] + x[1] + 0.7610064196631139*z[0]
-    t1 = x[1] - 0.2124787925659489*x[0] + 0.2124787925659489*z[0]
+    t0 = 0.2389935803368862*x[0] + x[1] + 0.7610064196631138*z[0]
+    t1 = x[1] - 0.21247879256594884*x[0] + 0.21247879256594884*z[0]
     _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (filter pred takes no absent measurements)')
     x_new = [t0, t1]
     return x_new
@@ -151,8 +151,8 @@ def run(zs, x0):
         keep = rows.extend
         pack = struct.Struct("2d").pack
         for z_0 in array("d", zs.tobytes()):
-            t0 = 0.23899358033688614*x_0 + x_1 + 0.7610064196631139*z_0
-            x_1 = x_1 - 0.2124787925659489*x_0 + 0.2124787925659489*z_0
+            t0 = 0.2389935803368862*x_0 + x_1 + 0.7610064196631138*z_0
+            x_1 = x_1 - 0.21247879256594884*x_0 + 0.21247879256594884*z_0
             if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
                 raise NumericalError(f"step {len(rows) // 16}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (filter pred takes no absent measurements)'))
             keep(pack(t0, x_1))

@@ -18,8 +18,8 @@
  *     step 1: measurement is NaN (filter sslf takes no absent measurements)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 10, instructions 7)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * A = [[ 0.45147237290283504,  0.45147237290283504], [-0.21247879256594884,  0.7875212074340512 ]]
- * B = [[0.548527627097165 ], [0.2124787925659489]]
+ * A = [[ 0.4514723729028351 ,  0.45147237290283504], [-0.21247879256594882,  0.7875212074340512 ]]
+ * B = [[0.5485276270971651 ], [0.21247879256594887]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 24, instructions 16)
  * derive-interface: {"functions":[["cv_sslf_step","step",true,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["cv_sslf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["cv_sslf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sslf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
@@ -98,8 +98,8 @@
 DERIVE_INLINE int cv_sslf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.45147237290283504, x[1 * s], DERIVE_FMA(0.45147237290283504, x[0], 0.548527627097165*z[0]));
-    const double t1 = DERIVE_FMA(0.7875212074340512, x[1 * s], DERIVE_FMA((-0.21247879256594884), x[0], 0.2124787925659489*z[0]));
+    const double t0 = DERIVE_FMA(0.45147237290283504, x[1 * s], DERIVE_FMA(0.4514723729028351, x[0], 0.5485276270971651*z[0]));
+    const double t1 = DERIVE_FMA(0.7875212074340512, x[1 * s], DERIVE_FMA((-0.21247879256594882), x[0], 0.21247879256594887*z[0]));
     if (!((z[0] == z[0])) && !status) {
         status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
     }
@@ -111,8 +111,8 @@ DERIVE_INLINE int cv_sslf_step_body(const double *restrict x, const double *rest
 DERIVE_INLINE int cv_sslf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.5593713717260734, x[1 * s], DERIVE_FMA(0.10789899882323835, x[0], DERIVE_FMA(0.548527627097165, zn[0], 0.3435733740795967*z[0])));
-    const double t1 = DERIVE_FMA(0.5242613474871077, x[1 * s], DERIVE_FMA((-0.2632598599469435), x[0], DERIVE_FMA(0.2124787925659489, zn[0], 0.05078106738099472*z[0])));
+    const double t0 = DERIVE_FMA(0.5593713717260734, x[1 * s], DERIVE_FMA(0.10789899882323842, x[0], DERIVE_FMA(0.5485276270971651, zn[0], 0.34357337407959676*z[0])));
+    const double t1 = DERIVE_FMA(0.5242613474871077, x[1 * s], DERIVE_FMA((-0.2632598599469435), x[0], DERIVE_FMA(0.21247879256594887, zn[0], 0.05078106738099469*z[0])));
     if (!((zn[0] == zn[0])) && !status) {
         status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
     }

@@ -18,7 +18,7 @@
  *     step 1: measurement is NaN (filter sslf takes no absent measurements)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 8, neg 0, cmp 2, calls 0 (flops 20, instructions 14)
  * A: (4, 4) constants baked into the code
- * B = [[0.36535881073846804, 0.                 ], [0.20683480863417475, 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.20683480863417475]]
+ * B = [[0.36535881073846804, 0.                 ], [0.20683480863417478, 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.20683480863417478]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 4, calls 0 (flops 48, instructions 32)
  * derive-interface: {"functions":[["gsm2d_a_sslf_step","step",true,false,[["x",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_sslf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]],["gsm2d_a_sslf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sslf takes no absent measurements)",[]]],"present":{"1":["z",["zx","zy"]]}}

@@ -15,8 +15,8 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
 status (C return value; Python raises NumericalError): 0 success
     step 1: measurement is NaN (filter sslf takes no absent measurements)
 operations per call of step (Python): add 3, sub 1, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 10, instructions 11)
-A = [[ 0.6346411892615319 ,  0.2692823785230638 ], [-0.20683480863417475,  0.5863303827316503 ]]
-B = [[0.36535881073846804], [0.20683480863417475]]
+A = [[ 0.6346411892615319 ,  0.26928237852306375], [-0.2068348086341748 ,  0.5863303827316504 ]]
+B = [[0.36535881073846804], [0.20683480863417478]]
 """
 
 import struct
@@ -102,8 +102,8 @@ def step(x, z):
         x_new [2]: x(k+1/k+1)
     Raises NumericalError when a runtime check fails.
     """
-    t0 = 0.6346411892615319*x[0] + 0.2692823785230638*x[1] + 0.36535881073846804*z[0]
-    t1 = 0.5863303827316503*x[1] - 0.20683480863417475*x[0] + 0.20683480863417475*z[0]
+    t0 = 0.6346411892615319*x[0] + 0.26928237852306375*x[1] + 0.36535881073846804*z[0]
+    t1 = 0.5863303827316504*x[1] - 0.2068348086341748*x[0] + 0.20683480863417478*z[0]
     _require_present((z[0],), ('z (z[0])',), 'measurement is NaN (filter sslf takes no absent measurements)')
     x_new = [t0, t1]
     return x_new
@@ -133,8 +133,8 @@ def run(zs, x0):
         keep = rows.extend
         pack = struct.Struct("2d").pack
         for z_0 in array("d", zs.tobytes()):
-            t0 = 0.6346411892615319*x_0 + 0.2692823785230638*x_1 + 0.36535881073846804*z_0
-            x_1 = 0.5863303827316503*x_1 - 0.20683480863417475*x_0 + 0.20683480863417475*z_0
+            t0 = 0.6346411892615319*x_0 + 0.26928237852306375*x_1 + 0.36535881073846804*z_0
+            x_1 = 0.5863303827316504*x_1 - 0.2068348086341748*x_0 + 0.20683480863417478*z_0
             if not (z_0 == z_0):  # noqa: PLR0124 (false for NaN only)
                 raise NumericalError(f"step {len(rows) // 16}: " + _nan_named((z_0,), ('z (z[0])',), 'measurement is NaN (filter sslf takes no absent measurements)'))
             keep(pack(t0, x_1))

@@ -138,12 +138,12 @@ __extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
 DERIVE_INLINE int mpt3d_a_jssklf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.2692823785230639, x[1 * s], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*z[0]));
-    const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.20683480863417478), x[0], 0.20683480863417478*z[0]));
-    const double t2 = DERIVE_FMA(0.2692823785230639, x[3 * s], DERIVE_FMA(0.634641189261532, x[2 * s], 0.36535881073846804*z[1 * s]));
-    const double t3 = DERIVE_FMA(0.5863303827316504, x[3 * s], DERIVE_FMA((-0.20683480863417478), x[2 * s], 0.20683480863417478*z[1 * s]));
-    const double t4 = DERIVE_FMA(0.2692823785230639, x[5 * s], DERIVE_FMA(0.634641189261532, x[4 * s], 0.36535881073846804*z[2 * s]));
-    const double t5 = DERIVE_FMA(0.5863303827316504, x[5 * s], DERIVE_FMA((-0.20683480863417478), x[4 * s], 0.20683480863417478*z[2 * s]));
+    const double t0 = DERIVE_FMA(0.26928237852306386, x[1 * s], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*z[0]));
+    const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
+    const double t2 = DERIVE_FMA(0.26928237852306386, x[3 * s], DERIVE_FMA(0.634641189261532, x[2 * s], 0.36535881073846804*z[1 * s]));
+    const double t3 = DERIVE_FMA(0.5863303827316504, x[3 * s], DERIVE_FMA((-0.2068348086341748), x[2 * s], 0.2068348086341748*z[1 * s]));
+    const double t4 = DERIVE_FMA(0.26928237852306386, x[5 * s], DERIVE_FMA(0.634641189261532, x[4 * s], 0.36535881073846804*z[2 * s]));
+    const double t5 = DERIVE_FMA(0.5863303827316504, x[5 * s], DERIVE_FMA((-0.2068348086341748), x[4 * s], 0.2068348086341748*z[2 * s]));
     if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
         status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
     }
@@ -159,12 +159,12 @@ DERIVE_INLINE int mpt3d_a_jssklf_step_body(const double *restrict x, const doubl
 DERIVE_INLINE int mpt3d_a_jssklf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.3287861290153685, x[1 * s], DERIVE_FMA(0.34707246987691837, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.2875687193846137*z[0])));
-    const double t1 = DERIVE_FMA(0.28808634848387027, x[1 * s], DERIVE_FMA((-0.2525394214409774), x[0], DERIVE_FMA(0.20683480863417478, zn[0], 0.045704612806802644*z[0])));
-    const double t2 = DERIVE_FMA(0.3287861290153685, x[3 * s], DERIVE_FMA(0.34707246987691837, x[2 * s], DERIVE_FMA(0.36535881073846804, zn[1 * s], 0.2875687193846137*z[1 * s])));
-    const double t3 = DERIVE_FMA(0.28808634848387027, x[3 * s], DERIVE_FMA((-0.2525394214409774), x[2 * s], DERIVE_FMA(0.20683480863417478, zn[1 * s], 0.045704612806802644*z[1 * s])));
-    const double t4 = DERIVE_FMA(0.3287861290153685, x[5 * s], DERIVE_FMA(0.34707246987691837, x[4 * s], DERIVE_FMA(0.36535881073846804, zn[2 * s], 0.2875687193846137*z[2 * s])));
-    const double t5 = DERIVE_FMA(0.28808634848387027, x[5 * s], DERIVE_FMA((-0.2525394214409774), x[4 * s], DERIVE_FMA(0.20683480863417478, zn[2 * s], 0.045704612806802644*z[2 * s])));
+    const double t0 = DERIVE_FMA(0.32878612901536847, x[1 * s], DERIVE_FMA(0.34707246987691837, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.2875687193846137*z[0])));
+    const double t1 = DERIVE_FMA(0.28808634848387027, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, zn[0], 0.04570461280680265*z[0])));
+    const double t2 = DERIVE_FMA(0.32878612901536847, x[3 * s], DERIVE_FMA(0.34707246987691837, x[2 * s], DERIVE_FMA(0.36535881073846804, zn[1 * s], 0.2875687193846137*z[1 * s])));
+    const double t3 = DERIVE_FMA(0.28808634848387027, x[3 * s], DERIVE_FMA((-0.25253942144097746), x[2 * s], DERIVE_FMA(0.2068348086341748, zn[1 * s], 0.04570461280680265*z[1 * s])));
+    const double t4 = DERIVE_FMA(0.32878612901536847, x[5 * s], DERIVE_FMA(0.34707246987691837, x[4 * s], DERIVE_FMA(0.36535881073846804, zn[2 * s], 0.2875687193846137*z[2 * s])));
+    const double t5 = DERIVE_FMA(0.28808634848387027, x[5 * s], DERIVE_FMA((-0.25253942144097746), x[4 * s], DERIVE_FMA(0.2068348086341748, zn[2 * s], 0.04570461280680265*z[2 * s])));
     if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])) && !status) {
         status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
     }
@@ -198,9 +198,9 @@ int mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double *
         int step_status = 0;
         const derive_vd a0 = 0.36535881073846804 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.634641189261532, 0.634641189261532, 0.634641189261532, 0.634641189261532}), x_v0, a0);
-        const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.2692823785230639, 0.2692823785230639, 0.2692823785230639, 0.2692823785230639}), x_v1, a1);
-        const derive_vd a3 = 0.20683480863417478 * az0;
-        const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478)}), x_v0, a3);
+        const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.26928237852306386, 0.26928237852306386, 0.26928237852306386, 0.26928237852306386}), x_v1, a1);
+        const derive_vd a3 = 0.2068348086341748 * az0;
+        const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748)}), x_v0, a3);
         const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
         if (!(az0[0] == az0[0]) && !step_status) {
             step_status = 1;
@@ -219,10 +219,10 @@ int mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double *
         const derive_vd b0 = 0.2875687193846137 * az0;
         const derive_vd b1 = DERIVE_VFMA(((derive_vd){0.36535881073846804, 0.36535881073846804, 0.36535881073846804, 0.36535881073846804}), bzn0, b0);
         const derive_vd b2 = DERIVE_VFMA(((derive_vd){0.34707246987691837, 0.34707246987691837, 0.34707246987691837, 0.34707246987691837}), x_v0, b1);
-        const derive_vd b3 = DERIVE_VFMA(((derive_vd){0.3287861290153685, 0.3287861290153685, 0.3287861290153685, 0.3287861290153685}), x_v1, b2);
-        const derive_vd b4 = 0.045704612806802644 * az0;
-        const derive_vd b5 = DERIVE_VFMA(((derive_vd){0.20683480863417478, 0.20683480863417478, 0.20683480863417478, 0.20683480863417478}), bzn0, b4);
-        const derive_vd b6 = DERIVE_VFMA(((derive_vd){(-0.2525394214409774), (-0.2525394214409774), (-0.2525394214409774), (-0.2525394214409774)}), x_v0, b5);
+        const derive_vd b3 = DERIVE_VFMA(((derive_vd){0.32878612901536847, 0.32878612901536847, 0.32878612901536847, 0.32878612901536847}), x_v1, b2);
+        const derive_vd b4 = 0.04570461280680265 * az0;
+        const derive_vd b5 = DERIVE_VFMA(((derive_vd){0.2068348086341748, 0.2068348086341748, 0.2068348086341748, 0.2068348086341748}), bzn0, b4);
+        const derive_vd b6 = DERIVE_VFMA(((derive_vd){(-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746)}), x_v0, b5);
         const derive_vd b7 = DERIVE_VFMA(((derive_vd){0.28808634848387027, 0.28808634848387027, 0.28808634848387027, 0.28808634848387027}), x_v1, b6);
         if (!(bzn0[0] == bzn0[0]) && !pass_status) {
             pass_status = 1;
@@ -253,9 +253,9 @@ int mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double *
         int step_status = 0;
         const derive_vd a0 = 0.36535881073846804 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.634641189261532, 0.634641189261532, 0.634641189261532, 0.634641189261532}), x_v0, a0);
-        const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.2692823785230639, 0.2692823785230639, 0.2692823785230639, 0.2692823785230639}), x_v1, a1);
-        const derive_vd a3 = 0.20683480863417478 * az0;
-        const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478)}), x_v0, a3);
+        const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.26928237852306386, 0.26928237852306386, 0.26928237852306386, 0.26928237852306386}), x_v1, a1);
+        const derive_vd a3 = 0.2068348086341748 * az0;
+        const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748)}), x_v0, a3);
         const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
         if (!(az0[0] == az0[0]) && !step_status) {
             step_status = 1;

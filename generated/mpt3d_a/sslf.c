@@ -138,12 +138,12 @@ __extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
 DERIVE_INLINE int mpt3d_a_sslf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.2692823785230638, x[1 * s], DERIVE_FMA(0.6346411892615319, x[0], 0.36535881073846804*z[0]));
-    const double t1 = DERIVE_FMA(0.5863303827316503, x[1 * s], DERIVE_FMA((-0.20683480863417475), x[0], 0.20683480863417475*z[0]));
-    const double t2 = DERIVE_FMA(0.2692823785230638, x[3 * s], DERIVE_FMA(0.6346411892615319, x[2 * s], 0.36535881073846804*z[1 * s]));
-    const double t3 = DERIVE_FMA(0.5863303827316503, x[3 * s], DERIVE_FMA((-0.20683480863417475), x[2 * s], 0.20683480863417475*z[1 * s]));
-    const double t4 = DERIVE_FMA(0.2692823785230638, x[5 * s], DERIVE_FMA(0.6346411892615319, x[4 * s], 0.36535881073846804*z[2 * s]));
-    const double t5 = DERIVE_FMA(0.5863303827316503, x[5 * s], DERIVE_FMA((-0.20683480863417475), x[4 * s], 0.20683480863417475*z[2 * s]));
+    const double t0 = DERIVE_FMA(0.26928237852306375, x[1 * s], DERIVE_FMA(0.6346411892615319, x[0], 0.36535881073846804*z[0]));
+    const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.20683480863417478*z[0]));
+    const double t2 = DERIVE_FMA(0.26928237852306375, x[3 * s], DERIVE_FMA(0.6346411892615319, x[2 * s], 0.36535881073846804*z[1 * s]));
+    const double t3 = DERIVE_FMA(0.5863303827316504, x[3 * s], DERIVE_FMA((-0.2068348086341748), x[2 * s], 0.20683480863417478*z[1 * s]));
+    const double t4 = DERIVE_FMA(0.26928237852306375, x[5 * s], DERIVE_FMA(0.6346411892615319, x[4 * s], 0.36535881073846804*z[2 * s]));
+    const double t5 = DERIVE_FMA(0.5863303827316504, x[5 * s], DERIVE_FMA((-0.2068348086341748), x[4 * s], 0.20683480863417478*z[2 * s]));
     if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
         status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
     }
@@ -159,12 +159,12 @@ DERIVE_INLINE int mpt3d_a_sslf_step_body(const double *restrict x, const double 
 DERIVE_INLINE int mpt3d_a_sslf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
 {
     int status = 0;
-    const double t0 = DERIVE_FMA(0.32878612901536836, x[1 * s], DERIVE_FMA(0.34707246987691825, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.28756871938461365*z[0])));
-    const double t1 = DERIVE_FMA(0.2880863484838702, x[1 * s], DERIVE_FMA((-0.25253942144097735), x[0], DERIVE_FMA(0.20683480863417475, zn[0], 0.045704612806802616*z[0])));
-    const double t2 = DERIVE_FMA(0.32878612901536836, x[3 * s], DERIVE_FMA(0.34707246987691825, x[2 * s], DERIVE_FMA(0.36535881073846804, zn[1 * s], 0.28756871938461365*z[1 * s])));
-    const double t3 = DERIVE_FMA(0.2880863484838702, x[3 * s], DERIVE_FMA((-0.25253942144097735), x[2 * s], DERIVE_FMA(0.20683480863417475, zn[1 * s], 0.045704612806802616*z[1 * s])));
-    const double t4 = DERIVE_FMA(0.32878612901536836, x[5 * s], DERIVE_FMA(0.34707246987691825, x[4 * s], DERIVE_FMA(0.36535881073846804, zn[2 * s], 0.28756871938461365*z[2 * s])));
-    const double t5 = DERIVE_FMA(0.2880863484838702, x[5 * s], DERIVE_FMA((-0.25253942144097735), x[4 * s], DERIVE_FMA(0.20683480863417475, zn[2 * s], 0.045704612806802616*z[2 * s])));
+    const double t0 = DERIVE_FMA(0.3287861290153683, x[1 * s], DERIVE_FMA(0.34707246987691825, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.2875687193846136*z[0])));
+    const double t1 = DERIVE_FMA(0.2880863484838703, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.20683480863417478, zn[0], 0.04570461280680264*z[0])));
+    const double t2 = DERIVE_FMA(0.3287861290153683, x[3 * s], DERIVE_FMA(0.34707246987691825, x[2 * s], DERIVE_FMA(0.36535881073846804, zn[1 * s], 0.2875687193846136*z[1 * s])));
+    const double t3 = DERIVE_FMA(0.2880863484838703, x[3 * s], DERIVE_FMA((-0.25253942144097746), x[2 * s], DERIVE_FMA(0.20683480863417478, zn[1 * s], 0.04570461280680264*z[1 * s])));
+    const double t4 = DERIVE_FMA(0.3287861290153683, x[5 * s], DERIVE_FMA(0.34707246987691825, x[4 * s], DERIVE_FMA(0.36535881073846804, zn[2 * s], 0.2875687193846136*z[2 * s])));
+    const double t5 = DERIVE_FMA(0.2880863484838703, x[5 * s], DERIVE_FMA((-0.25253942144097746), x[4 * s], DERIVE_FMA(0.20683480863417478, zn[2 * s], 0.04570461280680264*z[2 * s])));
     if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])) && !status) {
         status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
     }
@@ -198,10 +198,10 @@ int mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *xs
         int step_status = 0;
         const derive_vd a0 = 0.36535881073846804 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.6346411892615319, 0.6346411892615319, 0.6346411892615319, 0.6346411892615319}), x_v0, a0);
-        const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.2692823785230638, 0.2692823785230638, 0.2692823785230638, 0.2692823785230638}), x_v1, a1);
-        const derive_vd a3 = 0.20683480863417475 * az0;
-        const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.20683480863417475), (-0.20683480863417475), (-0.20683480863417475), (-0.20683480863417475)}), x_v0, a3);
-        const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.5863303827316503, 0.5863303827316503, 0.5863303827316503, 0.5863303827316503}), x_v1, a4);
+        const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.26928237852306375, 0.26928237852306375, 0.26928237852306375, 0.26928237852306375}), x_v1, a1);
+        const derive_vd a3 = 0.20683480863417478 * az0;
+        const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748)}), x_v0, a3);
+        const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
         if (!(az0[0] == az0[0]) && !step_status) {
             step_status = 1;
         }
@@ -216,14 +216,14 @@ int mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *xs
         }
         const derive_vd bzn0 = {znk[0], znk[1], znk[2], znk[0]};
         int pass_status = 0;
-        const derive_vd b0 = 0.28756871938461365 * az0;
+        const derive_vd b0 = 0.2875687193846136 * az0;
         const derive_vd b1 = DERIVE_VFMA(((derive_vd){0.36535881073846804, 0.36535881073846804, 0.36535881073846804, 0.36535881073846804}), bzn0, b0);
         const derive_vd b2 = DERIVE_VFMA(((derive_vd){0.34707246987691825, 0.34707246987691825, 0.34707246987691825, 0.34707246987691825}), x_v0, b1);
-        const derive_vd b3 = DERIVE_VFMA(((derive_vd){0.32878612901536836, 0.32878612901536836, 0.32878612901536836, 0.32878612901536836}), x_v1, b2);
-        const derive_vd b4 = 0.045704612806802616 * az0;
-        const derive_vd b5 = DERIVE_VFMA(((derive_vd){0.20683480863417475, 0.20683480863417475, 0.20683480863417475, 0.20683480863417475}), bzn0, b4);
-        const derive_vd b6 = DERIVE_VFMA(((derive_vd){(-0.25253942144097735), (-0.25253942144097735), (-0.25253942144097735), (-0.25253942144097735)}), x_v0, b5);
-        const derive_vd b7 = DERIVE_VFMA(((derive_vd){0.2880863484838702, 0.2880863484838702, 0.2880863484838702, 0.2880863484838702}), x_v1, b6);
+        const derive_vd b3 = DERIVE_VFMA(((derive_vd){0.3287861290153683, 0.3287861290153683, 0.3287861290153683, 0.3287861290153683}), x_v1, b2);
+        const derive_vd b4 = 0.04570461280680264 * az0;
+        const derive_vd b5 = DERIVE_VFMA(((derive_vd){0.20683480863417478, 0.20683480863417478, 0.20683480863417478, 0.20683480863417478}), bzn0, b4);
+        const derive_vd b6 = DERIVE_VFMA(((derive_vd){(-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746)}), x_v0, b5);
+        const derive_vd b7 = DERIVE_VFMA(((derive_vd){0.2880863484838703, 0.2880863484838703, 0.2880863484838703, 0.2880863484838703}), x_v1, b6);
         if (!(bzn0[0] == bzn0[0]) && !pass_status) {
             pass_status = 1;
         }
@@ -253,10 +253,10 @@ int mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *xs
         int step_status = 0;
         const derive_vd a0 = 0.36535881073846804 * az0;
         const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.6346411892615319, 0.6346411892615319, 0.6346411892615319, 0.6346411892615319}), x_v0, a0);
-        const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.2692823785230638, 0.2692823785230638, 0.2692823785230638, 0.2692823785230638}), x_v1, a1);
-        const derive_vd a3 = 0.20683480863417475 * az0;
-        const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.20683480863417475), (-0.20683480863417475), (-0.20683480863417475), (-0.20683480863417475)}), x_v0, a3);
-        const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.5863303827316503, 0.5863303827316503, 0.5863303827316503, 0.5863303827316503}), x_v1, a4);
+        const derive_vd a2 = DERIVE_VFMA(((derive_vd){0.26928237852306375, 0.26928237852306375, 0.26928237852306375, 0.26928237852306375}), x_v1, a1);
+        const derive_vd a3 = 0.20683480863417478 * az0;
+        const derive_vd a4 = DERIVE_VFMA(((derive_vd){(-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748)}), x_v0, a3);
+        const derive_vd a5 = DERIVE_VFMA(((derive_vd){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
         if (!(az0[0] == az0[0]) && !step_status) {
             step_status = 1;
         }

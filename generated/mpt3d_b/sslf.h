@@ -17,8 +17,8 @@
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: measurement is NaN (filter sslf takes no absent measurements)
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 1, calls 0 (flops 10, instructions 7)
- * A = [[ 0.6346411892615319 ,  0.2692823785230638 ], [-0.20683480863417475,  0.5863303827316503 ]]
- * B = [[0.36535881073846804], [0.20683480863417475]]
+ * A = [[ 0.6346411892615319 ,  0.26928237852306375], [-0.2068348086341748 ,  0.5863303827316504 ]]
+ * B = [[0.36535881073846804], [0.20683480863417478]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 2, calls 0 (flops 24, instructions 16)
  * derive-interface: {"functions":[["mpt3d_b_sslf_step","step",true,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["mpt3d_b_sslf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["mpt3d_b_sslf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[["step",1,"measurement is NaN (filter sslf takes no absent measurements)",[]]],"present":{"1":["z",["z"]]}}
