@@ -60,10 +60,10 @@ import math
 from collections.abc import Mapping, Sequence
 
 import sympy
-from sympy import default_sort_key
 
 from derive.errors import ModelError
 from derive.guards import IfAtLeast, IfGreater
+from derive.sort_keys import SortKeys
 from derive.trees import Const, Op, Tree, Var, depth
 
 #: sympy function -> name of the C function (math.h) it lowers to.
@@ -172,11 +172,9 @@ class ExpressionLowerer:
         self.use_fma = use_fma
         self.state_ports = frozenset(state_ports)
         self.order_names = dict(order_names or {})
-
-    def order(self, e: sympy.Expr):
-        """The key terms and factors are lowered in: sympy's order of ``e`` with its
-        symbols named as in :attr:`order_names` (the symbols they copy)."""
-        return default_sort_key(e.xreplace(self.order_names) if self.order_names else e)
+        self.order = SortKeys(self.order_names)
+        """The key terms and factors are lowered in: sympy's order of an expression with
+        its symbols named as in :attr:`order_names` (the symbols they copy)."""
 
     def lower(self, e: sympy.Basic) -> Tree:
         if e.is_number:
@@ -374,7 +372,6 @@ class RememberingLowerer(ExpressionLowerer):
     def __init__(self, use_fma: bool, state_ports: tuple[str, ...]) -> None:
         super().__init__(use_fma, state_ports)
         self.trees: dict[sympy.Basic, Tree] = {}
-        self.keys: dict[sympy.Basic, tuple] = {}
 
     def __call__(self, e: sympy.Basic) -> Tree:
         return self.lower(e)
@@ -384,9 +381,3 @@ class RememberingLowerer(ExpressionLowerer):
         if tree is None:
             tree = self.trees[e] = super().lower(e)
         return tree
-
-    def order(self, e: sympy.Expr):
-        key = self.keys.get(e)
-        if key is None:
-            key = self.keys[e] = super().order(e)
-        return key
