@@ -18,14 +18,17 @@ ones check every pivot at runtime (``Program.require_positive``).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import sympy
 
 from derive.errors import MatrixPropertyError, ShapeError
 from derive.expression_lowering import negative_number
+from derive.monomials import product, sum_of
 from derive.program import Program
+
+_ZERO, _ONE = sympy.S.Zero, sympy.S.One
 
 
 def _shape(M: sympy.Matrix) -> tuple[int, int]:
@@ -47,6 +50,19 @@ def _need_square(M: sympy.Matrix, name: str, what: str) -> int:
 
 def _dot(terms: Sequence[sympy.Expr]) -> sympy.Expr:
     return sympy.Add(*terms)
+
+
+def dot(pairs: Iterable[tuple[sympy.Expr, sympy.Expr]]) -> sympy.Expr:
+    """``sum(a*b for a, b in pairs)``, the same sympy expression, without building the
+    products of an exact zero (sympy would fold each to 0 through a full ``Mul``) or of an
+    exact one, so a banded or sparse factor costs its nonzero entries, not its size; the
+    products and their sum as :mod:`derive.monomials` builds them."""
+    terms = []
+    for a, b in pairs:
+        if a is _ZERO or b is _ZERO:
+            continue
+        terms.append(b if a is _ONE else a if b is _ONE else product(a, b))
+    return sum_of(terms)
 
 
 def _stage(prog: Program, expr: sympy.Expr, hint: str = "t") -> sympy.Expr:
@@ -88,8 +104,8 @@ def matmul(prog: Program, A: sympy.Matrix, B: sympy.Matrix, *, symmetric_result:
     if A.cols != B.rows:
         raise ShapeError(f"matmul: A has shape {_shape(A)} and B has shape {_shape(B)}; "
                          "A.cols must equal B.rows")
-    return _build(prog, A.rows, B.cols,
-                  lambda i, j: _dot([A[i, k] * B[k, j] for k in range(A.cols)]),
+    rows, columns = A.tolist(), B.T.tolist()       # sympy's indexing is slow
+    return _build(prog, A.rows, B.cols, lambda i, j: dot(zip(rows[i], columns[j])),
                   symmetric_result, hint, "matmul")
 
 
@@ -167,12 +183,12 @@ def _ldl(prog: Program, S: sympy.Matrix, name: str, axis: str | None = None):
     D: list[sympy.Expr] = []
     Dinv: list[sympy.Expr] = []
     for j in range(m):
-        d = _stage(prog, S[j, j] - _dot([E[j, k] * L[j, k] for k in range(j)]), "d")
+        d = _stage(prog, S[j, j] - dot((E[j, k], L[j, k]) for k in range(j)), "d")
         prog.require_positive(d, PivotMessage(name, j, "LDL^T", axis))
         D.append(d)
         Dinv.append(_stage(prog, 1 / d, "dinv"))
         for i in range(j + 1, m):
-            E[i, j] = _stage(prog, S[i, j] - _dot([E[i, k] * L[j, k] for k in range(j)]))
+            E[i, j] = _stage(prog, S[i, j] - dot((E[i, k], L[j, k]) for k in range(j)))
             L[i, j] = _stage(prog, E[i, j] * Dinv[j], "l")
     return L, D, Dinv
 
@@ -199,7 +215,7 @@ def forward_substitute(prog: Program, L: sympy.Matrix, B: sympy.Matrix) -> sympy
     Y = sympy.zeros(L.rows, B.cols)
     for c in range(B.cols):
         for i in range(L.rows):
-            Y[i, c] = _stage(prog, B[i, c] - _dot([L[i, k] * Y[k, c] for k in range(i)]))
+            Y[i, c] = _stage(prog, B[i, c] - dot((L[i, k], Y[k, c]) for k in range(i)))
     return Y
 
 
@@ -269,7 +285,7 @@ def spd_solve_pivots(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
     X = sympy.zeros(m, B.cols)
     for c in range(B.cols):
         for i in reversed(range(m)):
-            X[i, c] = _stage(prog, Z[i, c] - _dot([L[k, i] * X[k, c] for k in range(i + 1, m)]))
+            X[i, c] = _stage(prog, Z[i, c] - dot((L[k, i], X[k, c]) for k in range(i + 1, m)))
     return X, L, pivots
 
 
@@ -282,13 +298,13 @@ def spd_inverse(prog: Program, S: sympy.Matrix, *, name: str = "S",
     W = sympy.eye(m)
     for j in range(m):
         for i in range(j + 1, m):
-            W[i, j] = _stage(prog, -_dot([L[i, k] * W[k, j] for k in range(j, i)]))
+            W[i, j] = _stage(prog, -dot((L[i, k], W[k, j]) for k in range(j, i)))
     V = sympy.zeros(m, m)  # V[k, j] = W[k, j] / D[k]
     for k in range(m):
         for j in range(k + 1):
             V[k, j] = _stage(prog, W[k, j] * Dinv[k])
     return _build(prog, m, m,
-                  lambda i, j: _dot([W[k, i] * V[k, j] for k in range(max(i, j), m)]),
+                  lambda i, j: dot((W[k, i], V[k, j]) for k in range(max(i, j), m)),
                   True, "t", "spd_inverse")
 
 
@@ -306,7 +322,7 @@ def cholesky(prog: Program, S: sympy.Matrix, *, name: str = "S") -> sympy.Matrix
         L[j, j] = _stage(prog, sympy.sqrt(r), "l")
         inv = _stage(prog, 1 / L[j, j], "linv")
         for i in range(j + 1, m):
-            numerator = S[i, j] - _dot([L[i, k] * L[j, k] for k in range(j)])
+            numerator = S[i, j] - dot((L[i, k], L[j, k]) for k in range(j))
             L[i, j] = _stage(prog, numerator * inv)
     return L
 
@@ -321,21 +337,21 @@ def lu_inverse(prog: Program, A: sympy.Matrix, *, name: str = "A") -> sympy.Matr
     Uinv: list[sympy.Expr] = []
     for i in range(n):
         for j in range(i, n):
-            U[i, j] = _stage(prog, A[i, j] - _dot([L[i, k] * U[k, j] for k in range(i)]), "u")
+            U[i, j] = _stage(prog, A[i, j] - dot((L[i, k], U[k, j]) for k in range(i)), "u")
         if U[i, i] == 0:
             raise MatrixPropertyError(f"lu_inverse: {name} is structurally singular "
                                       f"(pivot {i} of its LU factorisation is exactly zero)")
         Uinv.append(_stage(prog, 1 / U[i, i], "uinv"))
         for j in range(i + 1, n):
-            numerator = A[j, i] - _dot([L[j, k] * U[k, i] for k in range(i)])
+            numerator = A[j, i] - dot((L[j, k], U[k, i]) for k in range(i))
             L[j, i] = _stage(prog, numerator * Uinv[i], "l")
     Y = sympy.eye(n)  # L^-1, unit lower triangular
     for j in range(n):
         for i in range(j + 1, n):
-            Y[i, j] = _stage(prog, -_dot([L[i, k] * Y[k, j] for k in range(j, i)]))
+            Y[i, j] = _stage(prog, -dot((L[i, k], Y[k, j]) for k in range(j, i)))
     X = sympy.zeros(n, n)
     for c in range(n):
         for i in reversed(range(n)):
-            numerator = Y[i, c] - _dot([U[i, k] * X[k, c] for k in range(i + 1, n)])
+            numerator = Y[i, c] - dot((U[i, k], X[k, c]) for k in range(i + 1, n))
             X[i, c] = _stage(prog, numerator * Uinv[i])
     return X

@@ -1,0 +1,93 @@
+"""Products and sums of monomials, built as sympy builds them, without its general flatten.
+
+Staging a matrix product builds, per entry, the products of two entries (atoms: input
+elements, temporaries, numbers, negated temporaries) and their sum.  sympy's ``Mul`` and
+``Add`` handle every kind of argument, and for these the general path is most of the
+derivation of a large filter.  A monomial here is a symbol, or a product of a nonzero
+rational and powers of distinct symbols (``-3*t1*t2**2``); for them sympy's result is
+known exactly:
+
+- the product of two distinct commutative symbols is the ``Mul`` of both in
+  :meth:`sympy.Basic.compare` order;
+- the sum of monomials that differ in more than their coefficients is the ``Add`` of
+  them as they are, in :meth:`sympy.Basic.compare` order.
+
+Everything else goes to sympy.  The results are the very expressions sympy returns
+(``tests/numerics/test_monomials.py`` compares them on random inputs), so generated code
+is byte for byte what sympy's constructors give.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from functools import cmp_to_key
+
+import sympy
+
+_COMPARE = cmp_to_key(sympy.Basic.compare)
+_ZERO, _ONE = sympy.S.Zero, sympy.S.One
+
+
+def _scaled_symbol(e: sympy.Expr):
+    """(c, s) of ``e = c * s``, ``c`` rational and ``s`` a commutative symbol or None;
+    None when ``e`` is neither a rational, a symbol nor a rational times a symbol."""
+    if e.is_Symbol:
+        return (_ONE, e) if e.is_commutative else None
+    if e.is_Rational:
+        return e, None
+    if e.is_Mul and len(e.args) == 2:
+        c, s = e.args
+        if c.is_Rational and s.is_Symbol and s.is_commutative:
+            return c, s
+    return None
+
+
+def product(a: sympy.Expr, b: sympy.Expr) -> sympy.Expr:
+    """``a * b``."""
+    left, right = _scaled_symbol(a), _scaled_symbol(b)
+    if left is None or right is None:
+        return a * b
+    coeff = left[0] * right[0]
+    symbols = [s for s in (left[1], right[1]) if s is not None]
+    if coeff is _ZERO or not symbols:
+        return a * b
+    if len(symbols) == 2:
+        order = symbols[0].compare(symbols[1])
+        if not order:
+            return a * b          # a power
+        if order > 0:
+            symbols.reverse()
+    args = symbols if coeff is _ONE else [coeff, *symbols]
+    return args[0] if len(args) == 1 else sympy.Mul._from_args(args, True)
+
+
+def _monomial_key(term: sympy.Expr):
+    """What sympy's ``Add`` collects ``term`` under (its factors without the coefficient),
+    or None when ``term`` is not a monomial."""
+    if term.is_Symbol:
+        return term if term.is_commutative else None
+    if not term.is_Mul or not term.is_commutative:
+        return None
+    args = term.args
+    start = 1 if args[0].is_Rational else 0
+    if start and args[0] is _ZERO:
+        return None
+    for factor in args[start:]:
+        if not (factor.is_Symbol or factor.is_Pow and factor.base.is_Symbol and
+                factor.exp.is_Integer):
+            return None
+    return term.as_coeff_Mul()[1]
+
+
+def sum_of(terms: Iterable[sympy.Expr]) -> sympy.Expr:
+    """``sympy.Add(*terms)``."""
+    terms = list(terms)
+    keys = set()
+    for term in terms:
+        key = _monomial_key(term)
+        if key is None or key in keys:
+            return sympy.Add(*terms)
+        keys.add(key)
+    if len(terms) < 2:
+        return terms[0] if terms else _ZERO
+    return sympy.Add._from_args(sorted(terms, key=_COMPARE), True)
