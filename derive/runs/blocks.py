@@ -38,6 +38,7 @@ the scalar run takes it. Not served, and why:
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.program import PARAMETER_PORT
@@ -150,7 +151,12 @@ class Part:
 
     body: tuple[tuple[int, LoweredAssign | LoweredCheck], ...]
     results: tuple[tuple[str, int, Tree], ...]
-    canonical: dict
+    shared: frozenset[str]
+
+    @cached_property
+    def canonical(self) -> dict:
+        """Built when first asked for: a step of one block never compares it."""
+        return _canonical(list(self.body), list(self.results), set(self.shared))
 
 
 @dataclass(frozen=True)
@@ -216,8 +222,8 @@ def independent_parts(program: LoweredProgram) -> Parts | None:
         block_of(name)["body"].append((position, st))
     for port, index, leaf, name in results:
         block_of(name)["results"].append((port, index, leaf))
-    parts = tuple(Part(tuple(b["body"]), tuple(b["results"]),
-                       _canonical(b["body"], b["results"], shared)) for b in blocks.values())
+    frozen = frozenset(shared)
+    parts = tuple(Part(tuple(b["body"]), tuple(b["results"]), frozen) for b in blocks.values())
     return Parts(parts, tuple(shared_statements), constants)
 
 
@@ -232,9 +238,11 @@ def split(program: LoweredProgram) -> Lanes | None:
     found = independent_parts(program)
     if found is None:
         return None
+    lanes = len(found.parts)
+    if not FEWEST_LANES <= lanes <= MOST_LANES:
+        return None
     parts = [part.canonical for part in found.parts]
-    lanes = len(parts)
-    if not FEWEST_LANES <= lanes <= MOST_LANES or any(p["key"] != parts[0]["key"] for p in parts):
+    if any(p["key"] != parts[0]["key"] for p in parts):
         return None
     first = parts[0]
     inputs = {key: tuple(p["inputs"][key] for p in parts) for key in first["inputs"]}

@@ -61,7 +61,7 @@ def shared_step(program: LoweredProgram, carried: Sequence[tuple[str, str]]
     when no two blocks are identical or they share nothing. ``carried``: the (input
     port, output port) pairs the run carries from step to step."""
     found = independent_parts(program)
-    if found is None:
+    if found is None or len(found.parts) < 2:
         return None
     groups: dict[object, list[Part]] = {}
     for part in found.parts:
