@@ -2,8 +2,9 @@
 
 NumPy arrays (SSPRED), from a stable steady-state transition A and gain B (or K); the
 constants written into generated code (the taps, A_N and B_N) are products and solves of
-derive.ieee_linalg, the same bits on every CPU. A bad FIR epsilon, norm or order, an unstable A, or a singular F where the
-prediction needs F^-(N-1) raises derive.errors.SteadyStateError.
+derive.ieee_linalg, the same bits on every CPU. A bad FIR epsilon, norm or order, an
+unstable A, or a singular F where the prediction needs F^-(N-1) raises
+derive.errors.SteadyStateError.
 """
 
 from __future__ import annotations

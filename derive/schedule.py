@@ -64,6 +64,7 @@ from fractions import Fraction
 import sympy
 from sympy import default_sort_key
 
+from derive import monomials
 from derive.arrivals import Arrivals, Form, arrival_times, statement_form
 from derive.expression_lowering import CARRIED, expression_lowerer
 from derive.program import Program
@@ -342,6 +343,7 @@ class _Work:
         self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
         self.forms: dict[sympy.Expr, Form] = {}
         self.leaves_of: dict[sympy.Expr, tuple[tuple[str, ...], bool]] = {}
+        self.term_sets: dict[sympy.Expr, frozenset[sympy.Expr]] = {}
 
     def fresh(self) -> Temporary:
         self.counter += 1
@@ -582,7 +584,7 @@ class _Work:
     def _late(self, slots: _Slots, state: Arrivals, target: Temporary, term: sympy.Expr,
               factor: Temporary):
         current = slots.statement(target)
-        if current is None or term not in sympy.Add.make_args(current.expr):
+        if current is None or term not in self._terms(current.expr):
             return None
         inner = slots.statement(factor).expr
         ready = state.ready
@@ -593,7 +595,7 @@ class _Work:
             return ready.get(getattr(base, "name", ""), -math.inf) + extra
 
         coeff, rest = inner.as_coeff_Mul()
-        args = sorted(sympy.Mul.make_args(rest), key=lambda a: (when(a), default_sort_key(a)))
+        args = sorted(sympy.Mul.make_args(rest), key=lambda a: (when(a), self.lower.order(a)))
         last = args[-1]
         reciprocal = None
         if last.is_Pow:
@@ -612,7 +614,9 @@ class _Work:
                                   late, reciprocal):
             return None   # refused unbuilt, its names spent as if built and refused
         product = Assign(w, sympy.Mul(coeff, *early, *args[:-1]))
-        terms = [w * late if t == term else t for t in sympy.Add.make_args(current.expr)]
+        key = hash(term)
+        terms = [monomials.product(w, late) if hash(t) == key and t == term else t
+                 for t in sympy.Add.make_args(current.expr)]
         if not self._late_wins(state, target, terms, product, reciprocal):
             return None
         changed = [product, Assign(target, sympy.Add(*terms))]
@@ -623,6 +627,14 @@ class _Work:
                               else (None, [reciprocal]))
             changed = [reciprocal, *changed]
         return changed, placements
+
+    def _terms(self, expr: sympy.Expr) -> frozenset[sympy.Expr]:
+        """The terms of the sum ``expr``, as a set (a sum of hundreds of terms is asked
+        whether it holds one for each rewrite tried on it)."""
+        terms = self.term_sets.get(expr)
+        if terms is None:
+            terms = self.term_sets[expr] = frozenset(sympy.Add.make_args(expr))
+        return terms
 
     def _late_may_win(self, state: Arrivals, target: Temporary, current: sympy.Expr,
                       term: sympy.Expr, early: list[sympy.Expr], late: sympy.Expr,
