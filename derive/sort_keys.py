@@ -44,14 +44,14 @@ class SortKeys:
         if e.is_Number:
             return e.sort_key()
         if not (e.is_Mul or e.is_Pow) or not e.is_commutative:
-            return self._sympy(e)
+            return self._structural(e)
         coeff, expr = e.as_coeff_Mul()
         factors = sympy.Mul.make_args(expr)
         bases = [f.base if f.is_Pow else f for f in factors]
         renamed = {self.names.get(b, b) for b in bases}
         if not all(b.is_Symbol and not b.is_Dummy for b in (*bases, *renamed)) or \
                 any(f.is_Pow and not f.exp.is_Number for f in factors):
-            return self._sympy(e)
+            return self._structural(e)
         if len(renamed) < len(bases):
             return self._sympy(e)     # renaming merges two factors into one power
         if expr.is_Pow:
@@ -63,3 +63,32 @@ class SortKeys:
             return (renamed.class_key(), (1, (str(renamed),)), _ONE.sort_key(), coeff)
         args = sorted(self(f) for f in factors)
         return (expr.class_key(), (len(args), tuple(args)), _ONE.sort_key(), coeff)
+
+    def _structural(self, e: sympy.Basic) -> tuple:
+        """:meth:`sympy.Expr.sort_key` of ``e`` from its arguments' remembered keys, where
+        ``e``'s class keeps that method and no symbol of ``e`` is renamed (a call such as
+        ``sin(x3 + 0.5)``, a product of calls); sympy's own key otherwise, and for a sum
+        (whose terms sympy orders by its own rules)."""
+        if type(e).sort_key is not sympy.Expr.sort_key or \
+                self.names and not e.free_symbols.isdisjoint(self.names):
+            return self._sympy(e)
+        coeff, expr = e.as_coeff_Mul()
+        if expr.is_Pow:
+            base, exp = expr.as_base_exp()
+            if base is sympy.S.Exp1:
+                return self._sympy(e)
+            expr = base
+        else:
+            exp = _ONE
+        if expr.is_Dummy:
+            args: tuple = (expr.sort_key(),)
+        elif expr.is_Atom:
+            args = (str(expr),)
+        elif expr.is_Add or not all(isinstance(a, sympy.Basic) for a in expr.args):
+            return self._sympy(e)
+        elif expr.is_Mul:
+            commuting, others = expr.args_cnc()
+            args = (*sorted(self(a) for a in commuting), *(self(a) for a in others))
+        else:
+            args = tuple(self(a) for a in expr.args)
+        return (expr.class_key(), (len(args), args), self(exp), coeff)

@@ -47,6 +47,7 @@ from .. import reference as numpy_reference
 from .. import staging
 from ..errors import OptionError
 from ..options import UnscentedOptions
+from ..monomials import sum_of
 from ..statements import substitute
 from .difference import DifferenceForm, difference_form, unmoved_turn
 from .kf import CONDITIONING
@@ -188,8 +189,8 @@ def _mean_and_spreads(prog, values: sympy.Matrix, D: list[sympy.Matrix], w: Weig
     Σ Wm Y_i = g(x) + dbar since Wm0 + 2n Wi = 1 and D_0 = 0; the spreads are
     -dbar (X_0) and D_i - dbar."""
     rows = values.rows
-    dbar = sympy.Matrix([prog.let(w.wi * prog.let(sympy.Add(*[d[r, 0] for d in D]), "sum"),
-                                  "mean") for r in range(rows)])
+    dbar = sympy.Matrix([prog.let(w.wi * prog.let(sum_of(d[r, 0] for d in D), "sum"), "mean")
+                         for r in range(rows)])
     return dbar, [-dbar] + [staging.sub(prog, d, dbar) for d in D]
 
 
@@ -199,7 +200,7 @@ def _weighted_covariance(prog, D: list[sympy.Matrix], w: Weights, add) -> sympy.
     out = sympy.zeros(k, k)
     for a in range(k):
         for b in range(a, k):
-            inner = prog.let(sympy.Add(*[d[a, 0] * d[b, 0] for d in D[1:]]), "cov")
+            inner = prog.let(staging.dot((d[a, 0], d[b, 0]) for d in D[1:]), "cov")
             out[a, b] = out[b, a] = prog.let(
                 w.wc0 * D[0][a, 0] * D[0][b, 0] + w.wi * inner + add[a, b], "cov")
     return out

@@ -1,6 +1,7 @@
 """derive.sort_keys.SortKeys is sympy's default_sort_key of the renamed expression, on
 random products, powers, sums and calls of temporaries, input elements and plain and
-dummy symbols, renamed onto each other (two factors merging into one power included)."""
+dummy symbols, renamed onto each other (two factors merging into one power included),
+with calls (``exp`` is a power of E to sympy) and symbolic exponents."""
 
 from __future__ import annotations
 
@@ -26,7 +27,9 @@ expressions = st.recursive(
         st.tuples(inner, st.sampled_from([2, -1, -2, 3, sympy.Rational(1, 2)])).map(
             lambda t: t[0] ** t[1]),
         st.lists(inner, min_size=1, max_size=3).map(lambda terms: sympy.Add(*terms)),
-        inner.map(sympy.sin)),
+        inner.map(sympy.sin), inner.map(sympy.exp),
+        st.tuples(inner, inner).map(lambda t: sympy.atan2(*t)),
+        st.tuples(inner, inner).map(lambda t: t[0] ** t[1])),
     max_leaves=8)
 renamings = st.dictionaries(st.sampled_from(SYMBOLS[:5]), st.sampled_from(SYMBOLS), max_size=3)
 
