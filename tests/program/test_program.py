@@ -348,3 +348,29 @@ def test_the_module_docstring_example_runs_and_is_right():
     counter = OpCounter()
     python_function(step)(*(counter.wrap(v) for v in (x, P.ravel(), [z], [r])))
     assert counter.snapshot() == count(step) and count(step).div == 2
+
+
+def test_a_banded_times_dense_product_builds_only_its_nonzero_products(monkeypatch):
+    """A staged product costs the nonzero entries of its factors: F (1 on the diagonal,
+    dt above it) times a dense P builds n (n - 1) products and no product with a zero or a
+    one, and the staged entries are sympy's own sums of those products."""
+    n = 6
+    dt = sympy.Rational(1, 10)
+    F = sympy.Matrix(n, n, lambda i, j: 1 if i == j else dt if j == i + 1 else 0)
+    prog = Program("f", [Port("P", (n, n))], [Port("y", (n, n))])
+    P = prog.matrix("P")
+    built = []
+    product = staging.product
+
+    def counted(a, b):
+        built.append((a, b))
+        return product(a, b)
+    monkeypatch.setattr(staging, "product", counted)
+    FP = staging.matmul(prog, F, P)
+    assert len(built) == n * (n - 1)
+    assert all(a != 0 and b != 0 and a != 1 and b != 1 for a, b in built)
+    defined = {st.target: st.expr for st in prog.body}
+    for i in range(n):
+        for j in range(n):
+            expected = sympy.Add(*[F[i, k] * P[k, j] for k in range(n)])
+            assert defined.get(FP[i, j], FP[i, j]) == expected
