@@ -273,7 +273,8 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
     ``+ - * /`` binary; unary minus is ``neg`` unless it is the sign of a numeric
     literal; ``fma_name(`` and ``fnma_name(`` are an fma each (the negative one is
     ``c - a*b``, as :class:`OpCount` counts it), ``sqrt(`` a sqrt, other ``name(`` calls
-    (except ``if``, ``return``, ``sizeof`` and ``for``/``while``) are calls;
+    (except ``if``, ``return``, ``sizeof``, ``for``/``while`` and ``DERIVE_FAIL``, a failed
+    check's branch-free status, derive.emit.c_printer) are calls;
     ``> < >= <= == !=`` are comparisons, ``?`` a select.
 
     A chunk of vector rows (``#if DERIVE_VECTOR`` ... ``#else`` ... ``#endif``) counts as
@@ -309,7 +310,7 @@ def _count_tokens(text: str, fma_name: str, fnma_name: str) -> OpCount:
             elif tok == "sqrt":
                 tally["sqrt"] += 1
             elif tok not in ("if", "return", "sizeof", "for", "while", "switch", "void",
-                             "__builtin_shufflevector"):
+                             "__builtin_shufflevector", "DERIVE_FAIL"):
                 tally["calls"] += 1
         elif kind == "op" and not depth:
             unary = prev is None or prev in _UNARY_BEFORE
@@ -409,4 +410,4 @@ def count_c_calls(source: str, text: str) -> OpCount:
 
 
 _C_WORDS = ("if", "return", "sizeof", "for", "while", "switch", "void", "sqrt", "DERIVE_FMA",
-            "DERIVE_FNMA")
+            "DERIVE_FNMA", "DERIVE_FAIL")

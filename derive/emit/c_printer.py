@@ -207,6 +207,20 @@ def pattern_check_lines(check: LoweredCheck, element: str | None = None,
             "}"]
 
 
+#: ``FAIL(status, code, passes)`` sets ``status`` to ``code`` when it is 0 and ``passes`` is
+#: false, with no branch (``(status) |= (!(passes) & !(status)) * (code)``): GCC 12
+#: vectorises a loop over lanes around such checks for AVX2 (``-march=znver3``,
+#: ``x86-64-v3``) as for AVX-512, where ``if (!(passes) && !status) status = code;`` it
+#: vectorises only with AVX-512's masked stores. The C text counts it as the comparisons
+#: of ``passes`` (derive.flops), as the ``if`` it replaces. Defined by :data:`FAIL_LINES`.
+FAIL = "DERIVE_FAIL"
+FAIL_LINES = [
+    f"#ifndef {FAIL}",
+    f"#define {FAIL}(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))",
+    "#endif",
+]
+
+
 def presence_lines(checks: list[LoweredCheck], printer: CPrinter,
                    status: str | None = None) -> list[str]:
     """One test of the presence checks of a program (they share one status): the
@@ -215,8 +229,7 @@ def presence_lines(checks: list[LoweredCheck], printer: CPrinter,
     test = " & ".join(f"({c.passes(printer.expression(c.tree.args[0]))})" for c in checks)
     comment = f"/* {comment_text(checks[0].message)} */"
     if status is not None:
-        return [f"if (!({test}) && !{status}) {{",
-                f"    {status} = {checks[0].status}; {comment}", "}"]
+        return [f"{FAIL}({status}, {checks[0].status}, {test}); {comment}"]
     return [f"if (!({test})) {{", f"    return {checks[0].status}; {comment}", "}"]
 
 
@@ -239,8 +252,9 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
 
     ``element(port, index)``: the C text of an element of a port (default ``x[3]``);
     ``status``: the name of an int a failed check sets, when it is still 0, instead of
-    returning (the statements then run to the end: no branch leaves them, so a loop
-    over tracks around them is vectorised); pattern checks always return."""
+    returning, through :data:`FAIL` (the statements then run to the end and no branch is
+    in them, so a loop over tracks around them is vectorised, with AVX2 as with AVX-512's
+    masked stores); pattern checks always return."""
     printer = CPrinter(None if element is None else
                        lambda v: v.name if v.index is None else element(v.base, v.index),
                        precision=precision)
@@ -276,9 +290,8 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
             body += pattern_check_lines(st, precision=precision)
         elif status is not None:
             value = printer.expression(st.tree.args[0])
-            body += [f"if (!({st.passes(value, precision.zero())}) && !{status}) {{",
-                     f"    {status} = {st.status}; /* {comment_text(st.message)} */",
-                     "}"]
+            body.append(f"{FAIL}({status}, {st.status}, {st.passes(value, precision.zero())});"
+                        f" /* {comment_text(st.message)} */")
         else:
             value = printer.expression(st.tree.args[0])
             body += [f"if (!({st.passes(value, precision.zero())})) {{",

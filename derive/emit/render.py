@@ -602,6 +602,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
+        + (c_printer.FAIL_LINES if any(b.checks for b in bodies) else [])
         + (c_loops.tracks_macros(run, bodied, real) if unit.run_tracks else []) + vector_macros,
         "functions": functions,
         "run_signature": run_signature,

@@ -63,6 +63,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -119,23 +122,17 @@ DERIVE_INLINE int ca_ikf_step_body(const double *restrict x, const double *restr
     const double t13 = 0.0033333333333333335 + t9;
     const double t14 = 0.005 + t6;
     const double t15 = 0.01 + P[8 * s];
-    if (!(t10 > 0.0) && !status) {
-        status = 1; /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t10 > 0.0); /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t16 = 1.0/t10;
     const double t17 = t11*t16;
     const double t18 = t12*t16;
     const double t19 = DERIVE_FNMA(t11, t17, t13);
-    if (!(t19 > 0.0) && !status) {
-        status = 2; /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t19 > 0.0); /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t20 = 1.0/t19;
     const double t21 = DERIVE_FNMA(t12, t17, t14);
     const double t22 = t20*t21;
     const double t23 = DERIVE_FNMA(t21, t22, DERIVE_FNMA(t12, t18, t15));
-    if (!(t23 > 0.0) && !status) {
-        status = 3; /* the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t23 > 0.0); /* the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t24 = 1.0/t23;
     const double t25 = DERIVE_FMA(t17, t22, -t18);
     const double t26 = t17*t20;
@@ -145,23 +142,17 @@ DERIVE_INLINE int ca_ikf_step_body(const double *restrict x, const double *restr
     const double t30 = DERIVE_FMA(t25, t28, t26);
     const double t31 = DERIVE_FMA(t22, t28, t20);
     const double t32 = 10.0 + t29;
-    if (!(t32 > 0.0) && !status) {
-        status = 4; /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 4, t32 > 0.0); /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t33 = 1.0/t32;
     const double t34 = t30*t33;
     const double t35 = t27*t33;
     const double t36 = DERIVE_FNMA(t30, t34, t31);
-    if (!(t36 > 0.0) && !status) {
-        status = 5; /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 5, t36 > 0.0); /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t37 = 1.0/t36;
     const double t38 = DERIVE_FMA(t27, t34, -t28);
     const double t39 = t37*t38;
     const double t40 = DERIVE_FNMA(t38, t39, DERIVE_FNMA(t27, t35, t24));
-    if (!(t40 > 0.0) && !status) {
-        status = 6; /* the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 6, t40 > 0.0); /* the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t41 = 1.0/t40;
     const double t42 = DERIVE_FMA(t34, t39, t35);
     const double t43 = t34*t37;
@@ -179,9 +170,7 @@ DERIVE_INLINE int ca_ikf_step_body(const double *restrict x, const double *restr
     const double t58 = DERIVE_FNMA(t51, t52, x[2 * s]);
     const double t59 = -t44;
     const double t60 = -t45;
-    if (!((z[0] == z[0])) && !status) {
-        status = 7; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 7, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t56;
     x_new[1 * s] = t57;
     x_new[2 * s] = t58;

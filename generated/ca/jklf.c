@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -115,9 +118,7 @@ DERIVE_INLINE int ca_jklf_step_body(const double *restrict x, const double *rest
     const double t14 = 0.005 + t6;
     const double t15 = 0.01 + P[8 * s];
     const double t16 = 0.1 + t10;
-    if (!(t16 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t16 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t17 = 1.0/t16;
     const double t18 = t10*t17;
     const double t19 = t11*t17;
@@ -226,9 +227,7 @@ DERIVE_INLINE int ca_jklf_step_body(const double *restrict x, const double *rest
     const double t134 = 0.5*t128;
     const double t135 = 0.5*t129;
     const double t136 = 0.5*t130;
-    if (!((z[0] == z[0])) && !status) {
-        status = 2; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 2, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t122;
     x_new[1 * s] = t123;
     x_new[2 * s] = t124;

@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -101,9 +104,7 @@ DERIVE_INLINE int ca_jssklf_step_body(const double *restrict x, const double *re
     const double t0 = DERIVE_FMA(0.12799930255230177, x[2 * s], DERIVE_FMA(0.25599860510460354, x[1 * s], DERIVE_FMA(0.25599860510460354, x[0], 0.7440013948953965*z[0])));
     const double t1 = DERIVE_FMA(0.7560328927201108, x[2 * s], DERIVE_FMA(0.5120657854402216, x[1 * s], DERIVE_FMA((-0.48793421455977853), x[0], 0.48793421455977837*z[0])));
     const double t2 = DERIVE_FMA(0.9200002179527027, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.15999956409459487), x[0], 0.15999956409459487*z[0])));
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (filter jssklf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
@@ -116,9 +117,7 @@ DERIVE_INLINE int ca_jssklf_pass_body(const double *restrict x, const double *re
     const double t0 = DERIVE_FMA(0.34407039510320964, x[2 * s], DERIVE_FMA(0.17614357999721225, x[1 * s], DERIVE_FMA((-0.07985502510739134), x[0], DERIVE_FMA(0.7440013948953965, zn[0], 0.3358536302119948*z[0]))));
     const double t1 = DERIVE_FMA(1.0202337639562238, x[2 * s], DERIVE_FMA(0.01633595703200415, x[1 * s], DERIVE_FMA((-0.4957298284082176), x[0], DERIVE_FMA(0.48793421455977837, zn[0], 0.007795613848438943*z[0]))));
     const double t2 = DERIVE_FMA(0.7049556351438467, x[2 * s], DERIVE_FMA((-0.2700896015231174), x[1 * s], DERIVE_FMA((-0.11009003742852252), x[0], DERIVE_FMA(0.15999956409459487, zn[0], (-0.049909526666072325)*z[0]))));
-    if (!((zn[0] == zn[0])) && !status) {
-        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0])); /* measurement is NaN (filter jssklf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;

@@ -57,6 +57,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -173,9 +176,7 @@ DERIVE_INLINE int ca_lf_step_body(const double *restrict x, const double *restri
     const double t76 = 0.0033177860696517415 + t70;
     const double t77 = 0.004979270315091211 + t71;
     const double t78 = 0.009972360420121614 + t72;
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t55;
     x_new[1 * s] = t56;
     x_new[2 * s] = t57;

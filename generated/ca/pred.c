@@ -59,6 +59,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int ca_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
@@ -66,9 +69,7 @@ DERIVE_INLINE int ca_pred_step_body(const double *restrict x, const double *rest
     const double t0 = DERIVE_FMA(0.5, x[2 * s], DERIVE_FMA((-0.3119353915024723), x[0], DERIVE_FMA(1.3119353915024723, z[0], x[1 * s])));
     const double t1 = DERIVE_FMA((-0.6479337786543732), x[0], DERIVE_FMA(0.6479337786543732, z[0], x[1 * s] + x[2 * s]));
     const double t2 = DERIVE_FMA((-0.15999956409459484), x[0], DERIVE_FMA(0.15999956409459484, z[0], x[2 * s]));
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (filter pred takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
@@ -81,9 +82,7 @@ DERIVE_INLINE int ca_pred_pass_body(const double *restrict x, const double *rest
     const double t0 = DERIVE_FMA(1.3440323042487639, x[2 * s], DERIVE_FMA(0.6880646084975277, x[1 * s], DERIVE_FMA((-0.63062987222987), x[0], DERIVE_FMA(1.3119353915024723, zn[0], 0.31869448072739764*z[0]))));
     const double t1 = DERIVE_FMA(1.6760331106728135, x[2 * s], DERIVE_FMA(0.3520662213456268, x[1 * s], DERIVE_FMA((-0.6058198658367399), x[0], DERIVE_FMA(0.6479337786543732, zn[0], (-0.042113912817633284)*z[0]))));
     const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.1100900374285225), x[0], DERIVE_FMA(0.15999956409459484, zn[0], (-0.04990952666607235)*z[0]))));
-    if (!((zn[0] == zn[0])) && !status) {
-        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0])); /* measurement is NaN (filter pred takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;

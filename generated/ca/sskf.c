@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -101,9 +104,7 @@ DERIVE_INLINE int ca_sskf_step_body(const double *restrict x, const double *rest
     const double t0 = DERIVE_FMA(0.12799930255230174, x[2 * s], DERIVE_FMA(0.2559986051046035, x[1 * s], DERIVE_FMA(0.2559986051046035, x[0], 0.7440013948953965*z[0])));
     const double t1 = DERIVE_FMA(0.7560328927201108, x[2 * s], DERIVE_FMA(0.5120657854402216, x[1 * s], DERIVE_FMA((-0.48793421455977837), x[0], 0.48793421455977837*z[0])));
     const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.15999956409459484), x[0], 0.15999956409459484*z[0])));
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sskf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (filter sskf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
@@ -116,9 +117,7 @@ DERIVE_INLINE int ca_sskf_pass_body(const double *restrict x, const double *rest
     const double t0 = DERIVE_FMA(0.3440703951032096, x[2 * s], DERIVE_FMA(0.1761435799972122, x[1 * s], DERIVE_FMA((-0.07985502510739129), x[0], DERIVE_FMA(0.7440013948953965, zn[0], 0.33585363021199477*z[0]))));
     const double t1 = DERIVE_FMA(1.0202337639562236, x[2 * s], DERIVE_FMA(0.01633595703200422, x[1 * s], DERIVE_FMA((-0.4957298284082174), x[0], DERIVE_FMA(0.48793421455977837, zn[0], 0.007795613848439045*z[0]))));
     const double t2 = DERIVE_FMA(0.7049556351438465, x[2 * s], DERIVE_FMA((-0.27008960152311734), x[1 * s], DERIVE_FMA((-0.1100900374285225), x[0], DERIVE_FMA(0.15999956409459484, zn[0], (-0.04990952666607235)*z[0]))));
-    if (!((zn[0] == zn[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sskf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0])); /* measurement is NaN (filter sskf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;

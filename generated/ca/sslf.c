@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -101,9 +104,7 @@ DERIVE_INLINE int ca_sslf_step_body(const double *restrict x, const double *rest
     const double t0 = DERIVE_FMA(0.1279993025523018, x[2 * s], DERIVE_FMA(0.2559986051046036, x[1 * s], DERIVE_FMA(0.2559986051046036, x[0], 0.7440013948953964*z[0])));
     const double t1 = DERIVE_FMA(0.7560328927201109, x[2 * s], DERIVE_FMA(0.5120657854402216, x[1 * s], DERIVE_FMA((-0.4879342145597787), x[0], 0.48793421455977837*z[0])));
     const double t2 = DERIVE_FMA(0.9200002179527028, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.15999956409459487), x[0], 0.15999956409459493*z[0])));
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (filter sslf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
@@ -116,9 +117,7 @@ DERIVE_INLINE int ca_sslf_pass_body(const double *restrict x, const double *rest
     const double t0 = DERIVE_FMA(0.3440703951032098, x[2 * s], DERIVE_FMA(0.1761435799972123, x[1 * s], DERIVE_FMA((-0.07985502510739138), x[0], DERIVE_FMA(0.7440013948953964, zn[0], 0.3358536302119949*z[0]))));
     const double t1 = DERIVE_FMA(1.020233763956224, x[2 * s], DERIVE_FMA(0.01633595703200406, x[1 * s], DERIVE_FMA((-0.4957298284082178), x[0], DERIVE_FMA(0.48793421455977837, zn[0], 0.007795613848438933*z[0]))));
     const double t2 = DERIVE_FMA(0.704955635143847, x[2 * s], DERIVE_FMA((-0.2700896015231174), x[1 * s], DERIVE_FMA((-0.11009003742852252), x[0], DERIVE_FMA(0.15999956409459493, zn[0], (-0.04990952666607224)*z[0]))));
-    if (!((zn[0] == zn[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0])); /* measurement is NaN (filter sslf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;

@@ -70,6 +70,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
 {
@@ -79,9 +82,7 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     const double t2 = 1.0 + U[5 * s];
     const double t3 = 0.01 + D[2 * s];
     const double t4 = 2.2250738585072014e-308 + t3;
-    if (!(t4 > 0.0) && !status) {
-        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 1, t4 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
     const double t5 = ((t3 <= 0.0) ? 1.0 : t3);
     const double t6 = DERIVE_FMA(D[2 * s], t1, 0.0016666666666666668);
     const double t7 = DERIVE_FMA(D[2 * s], t2, 0.005);
@@ -99,9 +100,7 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     const double t19 = 0.0011111111111111111*t9;
     const double t20 = DERIVE_FMA(t19, t9, DERIVE_FMA(t15, t18, DERIVE_FMA(t14, t17, DERIVE_FMA(t13, t16, D[1 * s]))));
     const double t21 = 2.2250738585072014e-308 + t20;
-    if (!(t21 > 0.0) && !status) {
-        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 2, t21 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     const double t22 = ((t20 <= 0.0) ? 1.0 : t20);
     const double t23 = DERIVE_FMA(t19, t8, DERIVE_FNMA(t12, t18, DERIVE_FMA(t11, t17, DERIVE_FMA(t10, t16, D[1 * s]*t0))));
     const double t24 = t23/t22;
@@ -117,25 +116,19 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     const double t34 = 0.0011111111111111111*t29;
     const double t35 = DERIVE_FMA(t29, t34, DERIVE_FMA(t28, t33, DERIVE_FMA(t27, t32, DERIVE_FMA(t26, t31, DERIVE_FMA(t25, t30, D[0])))));
     const double t36 = 2.2250738585072014e-308 + t35;
-    if (!(t36 > 0.0) && !status) {
-        status = 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 3, t36 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     const double t37 = DERIVE_FMA(0.5, x[2 * s], x[0] + x[1 * s]);
     const double t38 = x[1 * s] + x[2 * s];
     const double t39 = t20*t24;
     const double t40 = t3*t8;
     const double t41 = 0.1 + t35;
-    if (!(t41 > 0.0) && !status) {
-        status = 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 4, t41 > 0.0); /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     const double t42 = 1.0/t41;
     const double t43 = 0.1*t42;
     const double t44 = t35*t43;
     const double t45 = t24*t39;
     const double t46 = t41 + t45;
-    if (!(t46 > 0.0) && !status) {
-        status = 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 5, t46 > 0.0); /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     const double t47 = 1.0/t46;
     const double t48 = t41*t47;
     const double t49 = t20*t48;
@@ -144,9 +137,7 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     const double t52 = t35 + t45;
     const double t53 = t40*t8;
     const double t54 = t46 + t53;
-    if (!(t54 > 0.0) && !status) {
-        status = 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 6, t54 > 0.0); /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     const double t55 = 1.0/t54;
     const double t56 = t46*t55;
     const double t57 = t3*t56;
@@ -160,9 +151,7 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     const double t65 = DERIVE_FMA(t60, t64, t37);
     const double t66 = DERIVE_FMA(t62, t64, t38);
     const double t67 = DERIVE_FMA(t40, t64, x[2 * s]);
-    if (!((z[0] == z[0])) && !status) {
-        status = 7; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 7, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t65;
     x_new[1 * s] = t66;
     x_new[2 * s] = t67;

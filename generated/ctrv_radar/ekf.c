@@ -62,6 +62,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int ctrv_radar_ekf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
@@ -142,15 +145,11 @@ DERIVE_INLINE int ctrv_radar_ekf_step_body(const double *restrict x, const doubl
     const double t73 = DERIVE_FNMA(t59, t62, t60*t64);
     const double t74 = 25.0 + t71;
     const double t75 = 0.0001 + t73;
-    if (!(t74 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t74 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t76 = 1.0/t74;
     const double t77 = t72*t76;
     const double t78 = DERIVE_FNMA(t72, t77, t75);
-    if (!(t78 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t78 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t79 = 1.0/t78;
     const double t80 = DERIVE_FNMA(t61, t77, t62);
     const double t81 = DERIVE_FNMA(t63, t77, t64);
@@ -211,9 +210,7 @@ DERIVE_INLINE int ctrv_radar_ekf_step_body(const double *restrict x, const doubl
     const double t136 = t50 - t121;
     const double t137 = t40 - t122;
     const double t138 = t51 - t123;
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
-        status = 3; /* measurement is NaN (filter ekf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 3, (z[0] == z[0]) & (z[1 * s] == z[1 * s])); /* measurement is NaN (filter ekf takes no absent measurements) */
     x_new[0] = t104;
     x_new[1 * s] = t105;
     x_new[2 * s] = t106;

@@ -72,6 +72,9 @@
 #elif defined(__GNUC__)
 #pragma GCC optimize ("fp-contract=off")
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 static int ctrv_radar_ukf_step_body_part0(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict w, int status)
 {
@@ -100,9 +103,7 @@ static int ctrv_radar_ukf_step_body_part0(const double *restrict x, const double
     const double t27 = DERIVE_FMA(0.5, x[4]*t13, t12*t3);
     const double t29 = DERIVE_FMA(x[2], t27, x[1]);
     const double t30 = ((t0 > 0.03) ? t24 : t29);
-    if (!(P[0] > 0.0) && !status) {
-        status = 1; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, P[0] > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     const double t31 = sqrt(P[0]);
     const double t32 = 1.0/t31;
     const double t33 = P[1]*t32;
@@ -110,33 +111,25 @@ static int ctrv_radar_ukf_step_body_part0(const double *restrict x, const double
     const double t35 = P[3]*t32;
     const double t36 = P[4]*t32;
     const double t37 = DERIVE_FNMA(t33, t33, P[6]);
-    if (!(t37 > 0.0) && !status) {
-        status = 2; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t37 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     const double t38 = sqrt(t37);
     const double t39 = 1.0/t38;
     const double t40 = t39*DERIVE_FNMA(t33, t34, P[7]);
     const double t41 = t39*DERIVE_FNMA(t33, t35, P[8]);
     const double t42 = t39*DERIVE_FNMA(t33, t36, P[9]);
     const double t43 = DERIVE_FNMA(t40, t40, DERIVE_FNMA(t34, t34, P[12]));
-    if (!(t43 > 0.0) && !status) {
-        status = 3; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t43 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     const double t44 = sqrt(t43);
     const double t45 = 1.0/t44;
     const double t46 = t45*DERIVE_FNMA(t40, t41, DERIVE_FNMA(t34, t35, P[13]));
     const double t47 = t45*DERIVE_FNMA(t40, t42, DERIVE_FNMA(t34, t36, P[14]));
     const double t48 = DERIVE_FNMA(t46, t46, DERIVE_FNMA(t41, t41, DERIVE_FNMA(t35, t35, P[18])));
-    if (!(t48 > 0.0) && !status) {
-        status = 4; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 4, t48 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     const double t49 = sqrt(t48);
     const double t50 = 1.0/t49;
     const double t51 = t50*DERIVE_FNMA(t46, t47, DERIVE_FNMA(t41, t42, DERIVE_FNMA(t35, t36, P[19])));
     const double t52 = DERIVE_FNMA(t51, t51, DERIVE_FNMA(t47, t47, DERIVE_FNMA(t42, t42, DERIVE_FNMA(t36, t36, P[24]))));
-    if (!(t52 > 0.0) && !status) {
-        status = 5; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 5, t52 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive */
     const double t53 = sqrt(t52);
     const double t54 = 1.7320508075688772*t31;
     const double t55 = 1.7320508075688772*t33;
@@ -609,9 +602,7 @@ static int ctrv_radar_ukf_step_body_part2(const double *restrict x, const double
     const double t447 = 0.16666666666666666*t446;
     const double t448 = DERIVE_FMA(2.0, w[28]*w[28], DERIVE_FMA(2.0, w[27]*w[27], DERIVE_FMA(2.0, w[26]*w[26], DERIVE_FMA(2.0, w[25]*w[25], t443))));
     const double t449 = DERIVE_FMA(0.16666666666666666, t448, 1e-06);
-    if (!(w[72] > 0.0) && !status) {
-        status = 6; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 6, w[72] > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     const double t450 = sqrt(w[72]);
     const double t451 = 1.0/t450;
     const double t452 = w[73]*t451;
@@ -619,33 +610,25 @@ static int ctrv_radar_ukf_step_body_part2(const double *restrict x, const double
     const double t454 = t424*t451;
     const double t455 = t426*t451;
     const double t456 = DERIVE_FNMA(t452, t452, t428);
-    if (!(t456 > 0.0) && !status) {
-        status = 7; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 7, t456 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     const double t457 = sqrt(t456);
     const double t458 = 1.0/t457;
     const double t459 = t458*DERIVE_FNMA(t452, t453, t430);
     const double t460 = t458*DERIVE_FNMA(t452, t454, t434);
     const double t461 = t458*DERIVE_FNMA(t452, t455, t436);
     const double t462 = DERIVE_FNMA(t459, t459, DERIVE_FNMA(t453, t453, t438));
-    if (!(t462 > 0.0) && !status) {
-        status = 8; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 8, t462 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     const double t463 = sqrt(t462);
     const double t464 = 1.0/t463;
     const double t465 = t464*DERIVE_FNMA(t459, t460, DERIVE_FNMA(t453, t454, t440));
     const double t466 = t464*DERIVE_FNMA(t459, t461, DERIVE_FNMA(t453, t455, t442));
     const double t467 = DERIVE_FNMA(t465, t465, DERIVE_FNMA(t460, t460, DERIVE_FNMA(t454, t454, t445)));
-    if (!(t467 > 0.0) && !status) {
-        status = 9; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 9, t467 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     const double t468 = sqrt(t467);
     const double t469 = 1.0/t468;
     const double t470 = t469*DERIVE_FNMA(t465, t466, DERIVE_FNMA(t460, t461, DERIVE_FNMA(t454, t455, t447)));
     const double t471 = DERIVE_FNMA(t470, t470, DERIVE_FNMA(t466, t466, DERIVE_FNMA(t461, t461, DERIVE_FNMA(t455, t455, t449))));
-    if (!(t471 > 0.0) && !status) {
-        status = 10; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 10, t471 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive */
     const double t472 = 1.7320508075688772*t450;
     const double t473 = 1.7320508075688772*t452;
     const double t474 = 1.7320508075688772*t457;
@@ -726,15 +709,11 @@ static int ctrv_radar_ukf_step_body_part2(const double *restrict x, const double
     const double t553 = 0.16666666666666666*t543;
     const double t554 = 0.16666666666666666*t544;
     const double t555 = 0.16666666666666666*t545;
-    if (!(t525 > 0.0) && !status) {
-        status = 11; /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 11, t525 > 0.0); /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t556 = 1.0/t525;
     const double t557 = t528*t556;
     const double t558 = DERIVE_FNMA(t528, t557, t531);
-    if (!(t558 > 0.0) && !status) {
-        status = 12; /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 12, t558 > 0.0); /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t559 = 1.0/t558;
     const double t560 = DERIVE_FNMA(t546, t557, t547);
     const double t561 = DERIVE_FNMA(t548, t557, t549);
@@ -796,9 +775,7 @@ static int ctrv_radar_ukf_step_body_part2(const double *restrict x, const double
     const double t622 = t445 - t607;
     const double t623 = t447 - t608;
     const double t624 = t449 - t609;
-    if (!((z[0] == z[0])) && !status) {
-        status = 13; /* measurement is NaN (filter ukf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 13, (z[0] == z[0])); /* measurement is NaN (filter ukf takes no absent measurements) */
     w[78] = t590;
     w[79] = t591;
     w[80] = t592;
@@ -826,9 +803,7 @@ static int ctrv_radar_ukf_step_body_part3(const double *restrict x, const double
 {
     (void)x;
     (void)P;
-    if (!((z[1] == z[1])) && !status) {
-        status = 13; /* measurement is NaN (filter ukf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 13, (z[1] == z[1])); /* measurement is NaN (filter ukf takes no absent measurements) */
     x_new[0] = w[78];
     x_new[1] = w[79];
     x_new[2] = w[80];

@@ -61,6 +61,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -108,28 +111,20 @@ DERIVE_INLINE int cv_ikf_step_body(const double *restrict x, const double *restr
     const double t4 = 0.0033333333333333335 + t3;
     const double t5 = 0.005 + t2;
     const double t6 = 0.01 + P[3 * s];
-    if (!(t4 > 0.0) && !status) {
-        status = 1; /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t4 > 0.0); /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t7 = 1.0/t4;
     const double t8 = t5*t7;
     const double t9 = DERIVE_FNMA(t5, t8, t6);
-    if (!(t9 > 0.0) && !status) {
-        status = 2; /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t9 > 0.0); /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t10 = 1.0/t9;
     const double t11 = t10*t8;
     const double t12 = DERIVE_FMA(t11, t8, t7);
     const double t13 = 10.0 + t12;
-    if (!(t13 > 0.0) && !status) {
-        status = 3; /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t13 > 0.0); /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t14 = 1.0/t13;
     const double t15 = t11*t14;
     const double t16 = DERIVE_FNMA(t11, t15, t10);
-    if (!(t16 > 0.0) && !status) {
-        status = 4; /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 4, t16 > 0.0); /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t17 = 1.0/t16;
     const double t18 = t15*t17;
     const double t19 = DERIVE_FMA(t15, t18, t14);
@@ -138,9 +133,7 @@ DERIVE_INLINE int cv_ikf_step_body(const double *restrict x, const double *restr
     const double t22 = z[0] - t0;
     const double t25 = DERIVE_FMA(t20, t22, t0);
     const double t26 = DERIVE_FMA(t21, t22, x[1 * s]);
-    if (!((z[0] == z[0])) && !status) {
-        status = 5; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 5, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t25;
     x_new[1 * s] = t26;
     P_new[0] = t19;

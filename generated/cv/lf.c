@@ -57,6 +57,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -133,9 +136,7 @@ DERIVE_INLINE int cv_lf_step_body(const double *restrict x, const double *restri
     const double t35 = 0.0032258064516129032 + t32;
     const double t36 = 0.004838709677419355 + t33;
     const double t37 = 0.009758064516129032 + t34;
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t26;
     x_new[1 * s] = t27;
     P_new[0] = t35;

@@ -59,15 +59,16 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int cv_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
     int status = 0;
     const double t0 = DERIVE_FMA(0.2389935803368862, x[0], DERIVE_FMA(0.7610064196631138, z[0], x[1 * s]));
     const double t1 = DERIVE_FMA((-0.21247879256594884), x[0], DERIVE_FMA(0.21247879256594884, z[0], x[1 * s]));
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (filter pred takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     return status;
@@ -78,9 +79,7 @@ DERIVE_INLINE int cv_pred_pass_body(const double *restrict x, const double *rest
     int status = 0;
     const double t0 = DERIVE_FMA(1.2389935803368861, x[1 * s], DERIVE_FMA((-0.15536086112370517), x[0], DERIVE_FMA(0.7610064196631138, zn[0], 0.39435444146059134*z[0])));
     const double t1 = DERIVE_FMA(0.7875212074340512, x[1 * s], DERIVE_FMA((-0.2632598599469435), x[0], DERIVE_FMA(0.21247879256594884, zn[0], 0.05078106738099468*z[0])));
-    if (!((zn[0] == zn[0])) && !status) {
-        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0])); /* measurement is NaN (filter pred takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     return status;

@@ -62,6 +62,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int cv_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
 {
@@ -74,9 +77,7 @@ DERIVE_INLINE int cv_rts_step_body(const double *restrict x, const double *restr
     const double t5 = 0.005 + t2;
     const double t6 = 0.01 + P[3 * s];
     const double t7 = 0.1 + t4;
-    if (!(t7 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t7 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t8 = t4/t7;
     const double t9 = t5/t7;
     const double t10 = z[0] - t0;
@@ -85,9 +86,7 @@ DERIVE_INLINE int cv_rts_step_body(const double *restrict x, const double *restr
     const double t18 = DERIVE_FNMA(t4, t8, t4);
     const double t19 = DERIVE_FNMA(t5, t8, t5);
     const double t20 = DERIVE_FNMA(t5, t9, t6);
-    if (!((z[0] == z[0])) && !status) {
-        status = 2; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 2, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t13;
     x_new[1 * s] = t14;
     P_new[0] = t18;

@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -100,9 +103,7 @@ DERIVE_INLINE int cv_sskf_step_body(const double *restrict x, const double *rest
     int status = 0;
     const double t0 = DERIVE_FMA(0.45147237290283504, x[1 * s], DERIVE_FMA(0.45147237290283504, x[0], 0.548527627097165*z[0]));
     const double t1 = DERIVE_FMA(0.7875212074340512, x[1 * s], DERIVE_FMA((-0.21247879256594884), x[0], 0.21247879256594884*z[0]));
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sskf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (filter sskf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     return status;
@@ -113,9 +114,7 @@ DERIVE_INLINE int cv_sskf_pass_body(const double *restrict x, const double *rest
     int status = 0;
     const double t0 = DERIVE_FMA(0.5593713717260734, x[1 * s], DERIVE_FMA(0.10789899882323835, x[0], DERIVE_FMA(0.548527627097165, zn[0], 0.3435733740795967*z[0])));
     const double t1 = DERIVE_FMA(0.5242613474871077, x[1 * s], DERIVE_FMA((-0.2632598599469435), x[0], DERIVE_FMA(0.21247879256594884, zn[0], 0.05078106738099468*z[0])));
-    if (!((zn[0] == zn[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sskf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0])); /* measurement is NaN (filter sskf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     return status;

@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -100,9 +103,7 @@ DERIVE_INLINE int cv_sslf_step_body(const double *restrict x, const double *rest
     int status = 0;
     const double t0 = DERIVE_FMA(0.45147237290283504, x[1 * s], DERIVE_FMA(0.4514723729028351, x[0], 0.5485276270971651*z[0]));
     const double t1 = DERIVE_FMA(0.7875212074340512, x[1 * s], DERIVE_FMA((-0.21247879256594882), x[0], 0.21247879256594887*z[0]));
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (filter sslf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     return status;
@@ -113,9 +114,7 @@ DERIVE_INLINE int cv_sslf_pass_body(const double *restrict x, const double *rest
     int status = 0;
     const double t0 = DERIVE_FMA(0.5593713717260734, x[1 * s], DERIVE_FMA(0.10789899882323842, x[0], DERIVE_FMA(0.5485276270971651, zn[0], 0.34357337407959676*z[0])));
     const double t1 = DERIVE_FMA(0.5242613474871077, x[1 * s], DERIVE_FMA((-0.2632598599469435), x[0], DERIVE_FMA(0.21247879256594887, zn[0], 0.05078106738099469*z[0])));
-    if (!((zn[0] == zn[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0])); /* measurement is NaN (filter sslf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     return status;

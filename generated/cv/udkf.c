@@ -67,6 +67,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int cv_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
 {
@@ -74,9 +77,7 @@ DERIVE_INLINE int cv_udkf_step_body(const double *restrict x, const double *rest
     const double t0 = 1.0 + U[1 * s];
     const double t1 = 0.01 + D[1 * s];
     const double t2 = 2.2250738585072014e-308 + t1;
-    if (!(t2 > 0.0) && !status) {
-        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 1, t2 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     const double t3 = ((t1 <= 0.0) ? 1.0 : t1);
     const double t4 = DERIVE_FMA(D[1 * s], t0, 0.005);
     const double t5 = t4/t3;
@@ -87,23 +88,17 @@ DERIVE_INLINE int cv_udkf_step_body(const double *restrict x, const double *rest
     const double t10 = 0.0025*t5;
     const double t11 = DERIVE_FMA(t7, t9, DERIVE_FMA(t6, t8, DERIVE_FMA(t10, t5, D[0])));
     const double t12 = 2.2250738585072014e-308 + t11;
-    if (!(t12 > 0.0) && !status) {
-        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 2, t12 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     const double t13 = x[0] + x[1 * s];
     const double t14 = t1*t5;
     const double t15 = 0.1 + t11;
-    if (!(t15 > 0.0) && !status) {
-        status = 3; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 3, t15 > 0.0); /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     const double t16 = 1.0/t15;
     const double t17 = 0.1*t16;
     const double t18 = t11*t17;
     const double t19 = t14*t5;
     const double t20 = t15 + t19;
-    if (!(t20 > 0.0) && !status) {
-        status = 4; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 4, t20 > 0.0); /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     const double t21 = 1.0/t20;
     const double t22 = t15*t21;
     const double t23 = t1*t22;
@@ -114,9 +109,7 @@ DERIVE_INLINE int cv_udkf_step_body(const double *restrict x, const double *rest
     const double t28 = t21*t27;
     const double t29 = DERIVE_FMA(t26, t28, t13);
     const double t30 = DERIVE_FMA(t14, t28, x[1 * s]);
-    if (!((z[0] == z[0])) && !status) {
-        status = 5; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 5, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t29;
     x_new[1 * s] = t30;
     U_new[0] = 1.0;

@@ -68,6 +68,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int gnss_pseudorange_ekf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new, const size_t s)
 {
@@ -142,33 +145,25 @@ DERIVE_INLINE int gnss_pseudorange_ekf_step_body(const double *restrict x, const
     const double t67 = 100.0 + t60;
     const double t68 = 100.0 + t63;
     const double t69 = 100.0 + t65;
-    if (!(t66 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t66 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t70 = 1.0/t66;
     const double t71 = t57*t70;
     const double t72 = t58*t70;
     const double t73 = t59*t70;
     const double t74 = DERIVE_FNMA(t57, t71, t67);
-    if (!(t74 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t74 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t75 = 1.0/t74;
     const double t76 = DERIVE_FNMA(t58, t71, t61);
     const double t77 = t75*t76;
     const double t78 = DERIVE_FNMA(t59, t71, t62);
     const double t79 = t75*t78;
     const double t80 = DERIVE_FNMA(t76, t77, DERIVE_FNMA(t58, t72, t68));
-    if (!(t80 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t80 > 0.0); /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t81 = 1.0/t80;
     const double t82 = DERIVE_FNMA(t77, t78, DERIVE_FNMA(t59, t72, t64));
     const double t83 = t81*t82;
     const double t84 = DERIVE_FNMA(t82, t83, DERIVE_FNMA(t78, t79, DERIVE_FNMA(t59, t73, t69)));
-    if (!(t84 > 0.0) && !status) {
-        status = 4; /* S is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 4, t84 > 0.0); /* S is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     const double t85 = 1.0/t84;
     const double t86 = DERIVE_FNMA(t40, t71, t41);
     const double t87 = DERIVE_FNMA(t77, t86, DERIVE_FNMA(t40, t72, t42));
@@ -233,9 +228,7 @@ DERIVE_INLINE int gnss_pseudorange_ekf_step_body(const double *restrict x, const
     const double t146 = t2 - t136;
     const double t147 = P[11 * s] - t137;
     const double t148 = t3 - t138;
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s]) & (z[3 * s] == z[3 * s])) && !status) {
-        status = 5; /* measurement is NaN (filter ekf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 5, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s]) & (z[3 * s] == z[3 * s])); /* measurement is NaN (filter ekf takes no absent measurements) */
     x_new[0] = t125;
     x_new[1 * s] = t126;
     x_new[2 * s] = t127;

@@ -78,6 +78,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new, const size_t s)
 {
@@ -86,33 +89,25 @@ DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const
     const double t1 = 0.01 + P[5 * s];
     const double t2 = 0.01 + P[10 * s];
     const double t3 = 0.01 + P[15 * s];
-    if (!(t0 > 0.0) && !status) {
-        status = 1; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t0 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     const double t4 = sqrt(t0);
     const double t5 = 1.0/t4;
     const double t6 = P[1 * s]*t5;
     const double t7 = P[2 * s]*t5;
     const double t8 = P[3 * s]*t5;
     const double t9 = DERIVE_FNMA(t6, t6, t1);
-    if (!(t9 > 0.0) && !status) {
-        status = 2; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t9 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     const double t10 = sqrt(t9);
     const double t11 = 1.0/t10;
     const double t12 = t11*DERIVE_FNMA(t6, t7, P[6 * s]);
     const double t13 = t11*DERIVE_FNMA(t6, t8, P[7 * s]);
     const double t14 = DERIVE_FNMA(t7, t7, DERIVE_FNMA(t12, t12, t2));
-    if (!(t14 > 0.0) && !status) {
-        status = 3; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t14 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     const double t15 = sqrt(t14);
     const double t16 = 1.0/t15;
     const double t17 = t16*DERIVE_FNMA(t7, t8, DERIVE_FNMA(t12, t13, P[11 * s]));
     const double t18 = DERIVE_FNMA(t8, t8, DERIVE_FNMA(t17, t17, DERIVE_FNMA(t13, t13, t3)));
-    if (!(t18 > 0.0) && !status) {
-        status = 4; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 4, t18 > 0.0); /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     const double t19 = sqrt(t18);
     const double t20 = 1.7320508075688772*t4;
     const double t21 = 1.7320508075688772*t6;
@@ -350,33 +345,25 @@ DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const
     const double t293 = 0.16666666666666666*t277;
     const double t294 = 0.16666666666666666*t278;
     const double t295 = 0.16666666666666666*t279;
-    if (!(t231 > 0.0) && !status) {
-        status = 5; /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 5, t231 > 0.0); /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t296 = 1.0/t231;
     const double t297 = t233*t296;
     const double t298 = t235*t296;
     const double t299 = t237*t296;
     const double t300 = DERIVE_FNMA(t233, t297, t239);
-    if (!(t300 > 0.0) && !status) {
-        status = 6; /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 6, t300 > 0.0); /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t301 = 1.0/t300;
     const double t302 = DERIVE_FNMA(t235, t297, t241);
     const double t303 = t301*t302;
     const double t304 = DERIVE_FNMA(t237, t297, t243);
     const double t305 = t301*t304;
     const double t306 = DERIVE_FNMA(t302, t303, DERIVE_FNMA(t235, t298, t245));
-    if (!(t306 > 0.0) && !status) {
-        status = 7; /* Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 7, t306 > 0.0); /* Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t307 = 1.0/t306;
     const double t308 = DERIVE_FNMA(t303, t304, DERIVE_FNMA(t237, t298, t247));
     const double t309 = t307*t308;
     const double t310 = DERIVE_FNMA(t308, t309, DERIVE_FNMA(t304, t305, DERIVE_FNMA(t237, t299, t249)));
-    if (!(t310 > 0.0) && !status) {
-        status = 8; /* Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 8, t310 > 0.0); /* Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     const double t311 = 1.0/t310;
     const double t312 = DERIVE_FNMA(t280, t297, t281);
     const double t313 = DERIVE_FNMA(t303, t312, DERIVE_FNMA(t280, t298, t282));
@@ -442,9 +429,7 @@ DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const
     const double t385 = t2 - t375;
     const double t386 = P[11 * s] - t376;
     const double t387 = t3 - t377;
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s]) & (z[3 * s] == z[3 * s])) && !status) {
-        status = 9; /* measurement is NaN (filter ukf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 9, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s]) & (z[3 * s] == z[3 * s])); /* measurement is NaN (filter ukf takes no absent measurements) */
     x_new[0] = t364;
     x_new[1 * s] = t365;
     x_new[2 * s] = t366;

@@ -64,6 +64,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -145,47 +148,33 @@ DERIVE_INLINE int gps_static_ikf_step_body(const double *restrict x, const doubl
 {
     int status = 0;
     const double t0 = 0.01 + P[0];
-    if (!(t0 > 0.0) && !status) {
-        status = 1; /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t0 > 0.0); /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t1 = 1.0/t0;
     const double t2 = 10.0 + t1;
-    if (!(t2 > 0.0) && !status) {
-        status = 2; /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t2 > 0.0); /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t3 = 1.0/t2;
     const double t4 = 10.0*t3;
     const double t5 = z[0] - x[0];
     const double t7 = DERIVE_FMA(t4, t5, x[0]);
     const double t8 = 0.01 + P[4 * s];
-    if (!(t8 > 0.0) && !status) {
-        status = 3; /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t8 > 0.0); /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t9 = 1.0/t8;
     const double t10 = 10.0 + t9;
-    if (!(t10 > 0.0) && !status) {
-        status = 4; /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 4, t10 > 0.0); /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t11 = 1.0/t10;
     const double t12 = 10.0*t11;
     const double t13 = z[1 * s] - x[1 * s];
     const double t15 = DERIVE_FMA(t12, t13, x[1 * s]);
     const double t16 = 0.01 + P[8 * s];
-    if (!(t16 > 0.0) && !status) {
-        status = 5; /* the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 5, t16 > 0.0); /* the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t17 = 1.0/t16;
     const double t18 = 10.0 + t17;
-    if (!(t18 > 0.0) && !status) {
-        status = 6; /* the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 6, t18 > 0.0); /* the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t19 = 1.0/t18;
     const double t20 = 10.0*t19;
     const double t21 = z[2 * s] - x[2 * s];
     const double t23 = DERIVE_FMA(t20, t21, x[2 * s]);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 7; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 7, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t7;
     x_new[1 * s] = t15;
     x_new[2 * s] = t23;

@@ -61,6 +61,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -143,9 +146,7 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     int status = 0;
     const double t0 = 0.01 + P[0];
     const double t1 = 0.1 + t0;
-    if (!(t1 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t1 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t2 = t0/t1;
     const double t3 = z[0] - x[0];
     const double t5 = DERIVE_FMA(t2, t3, x[0]);
@@ -163,9 +164,7 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     const double t24 = 0.5*t23;
     const double t25 = 0.01 + P[4 * s];
     const double t26 = 0.1 + t25;
-    if (!(t26 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t26 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t27 = t25/t26;
     const double t28 = z[1 * s] - x[1 * s];
     const double t30 = DERIVE_FMA(t27, t28, x[1 * s]);
@@ -183,9 +182,7 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     const double t49 = 0.5*t48;
     const double t50 = 0.01 + P[8 * s];
     const double t51 = 0.1 + t50;
-    if (!(t51 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t51 > 0.0); /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t52 = t50/t51;
     const double t53 = z[2 * s] - x[2 * s];
     const double t55 = DERIVE_FMA(t52, t53, x[2 * s]);
@@ -201,9 +198,7 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     const double t72 = 0.5*t71;
     const double t73 = t70 + t57;
     const double t74 = 0.5*t73;
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 4, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t22;
     x_new[1 * s] = t47;
     x_new[2 * s] = t72;

@@ -61,6 +61,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -143,34 +146,26 @@ DERIVE_INLINE int gps_static_kf_step_body(const double *restrict x, const double
     int status = 0;
     const double t0 = 0.01 + P[0];
     const double t1 = 0.1 + t0;
-    if (!(t1 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t1 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t2 = t0/t1;
     const double t3 = z[0] - x[0];
     const double t5 = DERIVE_FMA(t2, t3, x[0]);
     const double t7 = DERIVE_FNMA(t0, t2, t0);
     const double t8 = 0.01 + P[4 * s];
     const double t9 = 0.1 + t8;
-    if (!(t9 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t9 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t10 = t8/t9;
     const double t11 = z[1 * s] - x[1 * s];
     const double t13 = DERIVE_FMA(t10, t11, x[1 * s]);
     const double t15 = DERIVE_FNMA(t8, t10, t8);
     const double t16 = 0.01 + P[8 * s];
     const double t17 = 0.1 + t16;
-    if (!(t17 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t17 > 0.0); /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t18 = t16/t17;
     const double t19 = z[2 * s] - x[2 * s];
     const double t21 = DERIVE_FMA(t18, t19, x[2 * s]);
     const double t23 = DERIVE_FNMA(t16, t18, t16);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 4, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t5;
     x_new[1 * s] = t13;
     x_new[2 * s] = t21;

@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int gps_static_kfp_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
 {
@@ -68,15 +71,9 @@ DERIVE_INLINE int gps_static_kfp_step_body(const double *restrict x, const doubl
     const double t3 = 0.1 + t0;
     const double t4 = 0.1 + t1;
     const double t5 = 0.1 + t2;
-    if (!(t3 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t4 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    if (!(t5 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t3 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    DERIVE_FAIL(status, 2, t4 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    DERIVE_FAIL(status, 3, t5 > 0.0); /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t6 = t0/t3;
     const double t7 = t1/t4;
     const double t8 = t2/t5;
@@ -89,9 +86,7 @@ DERIVE_INLINE int gps_static_kfp_step_body(const double *restrict x, const doubl
     const double t21 = DERIVE_FNMA(t0, t6, t0);
     const double t22 = DERIVE_FNMA(t1, t7, t1);
     const double t23 = DERIVE_FNMA(t2, t8, t2);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 4, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t15;
     x_new[1 * s] = t16;
     x_new[2 * s] = t17;

@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -159,9 +162,7 @@ DERIVE_INLINE int gps_static_lf_step_body(const double *restrict x, const double
     const double t32 = DERIVE_FMA(P[8 * s], t30, x[2 * s]);
     const double t35 = DERIVE_FMA(t29, t32, 0.09090909090909091*z[2 * s]);
     const double t38 = DERIVE_FMA(0.9090909090909091, P[8 * s]*t29, 0.00909090909090909);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t9;
     x_new[1 * s] = t22;
     x_new[2 * s] = t35;

@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -141,9 +144,7 @@ DERIVE_INLINE int gps_static_sslf_step_body(const double *restrict x, const doub
     const double t0 = DERIVE_FMA(0.7298437881283575, x[0], 0.2701562118716424*z[0]);
     const double t1 = DERIVE_FMA(0.7298437881283575, x[1 * s], 0.2701562118716424*z[1 * s]);
     const double t2 = DERIVE_FMA(0.7298437881283575, x[2 * s], 0.2701562118716424*z[2 * s]);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (filter sslf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
@@ -156,9 +157,7 @@ DERIVE_INLINE int gps_static_sslf_pass_body(const double *restrict x, const doub
     const double t0 = DERIVE_FMA(0.5326719550695508, x[0], DERIVE_FMA(0.2701562118716424, zn[0], 0.19717183305880664*z[0]));
     const double t1 = DERIVE_FMA(0.5326719550695508, x[1 * s], DERIVE_FMA(0.2701562118716424, zn[1 * s], 0.19717183305880664*z[1 * s]));
     const double t2 = DERIVE_FMA(0.5326719550695508, x[2 * s], DERIVE_FMA(0.2701562118716424, zn[2 * s], 0.19717183305880664*z[2 * s]));
-    if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])) && !status) {
-        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])); /* measurement is NaN (filter sslf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;

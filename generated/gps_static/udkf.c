@@ -72,6 +72,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
 {
@@ -79,23 +82,15 @@ DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const doub
     int status = 0;
     const double t0 = 0.01 + D[2 * s];
     const double t1 = 2.2250738585072014e-308 + t0;
-    if (!(t1 > 0.0) && !status) {
-        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 1, t1 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
     const double t2 = 0.01 + D[1 * s];
     const double t3 = 2.2250738585072014e-308 + t2;
-    if (!(t3 > 0.0) && !status) {
-        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 2, t3 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     const double t4 = 0.01 + D[0];
     const double t5 = 2.2250738585072014e-308 + t4;
-    if (!(t5 > 0.0) && !status) {
-        status = 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 3, t5 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     const double t6 = 0.1 + t4;
-    if (!(t6 > 0.0) && !status) {
-        status = 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 4, t6 > 0.0); /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     const double t7 = 1.0/t6;
     const double t8 = 0.1*t7;
     const double t9 = t4*t8;
@@ -103,9 +98,7 @@ DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const doub
     const double t11 = t10*t7;
     const double t12 = DERIVE_FMA(t11, t4, x[0]);
     const double t13 = 0.1 + t2;
-    if (!(t13 > 0.0) && !status) {
-        status = 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 5, t13 > 0.0); /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     const double t14 = 1.0/t13;
     const double t15 = 0.1*t14;
     const double t16 = t15*t2;
@@ -113,18 +106,14 @@ DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const doub
     const double t18 = t14*t17;
     const double t19 = DERIVE_FMA(t18, t2, x[1 * s]);
     const double t20 = 0.1 + t0;
-    if (!(t20 > 0.0) && !status) {
-        status = 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 6, t20 > 0.0); /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     const double t21 = 1.0/t20;
     const double t22 = 0.1*t21;
     const double t23 = t0*t22;
     const double t24 = z[2 * s] - x[2 * s];
     const double t25 = t21*t24;
     const double t26 = DERIVE_FMA(t0, t25, x[2 * s]);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 7; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 7, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t12;
     x_new[1 * s] = t19;
     x_new[2 * s] = t26;

@@ -59,6 +59,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -110,9 +113,7 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t8 = t5 + t6;
     const double t9 = t7 + t8;
     const double t10 = 0.1 + t9;
-    if (!(t10 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t10 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t11 = t7/t10;
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
@@ -181,9 +182,7 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t83 = t80 + t81;
     const double t84 = t82 + t83;
     const double t85 = 0.1 + t84;
-    if (!(t85 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t85 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t86 = t82/t85;
     const double t87 = t83/t85;
     const double t88 = x[3 * s] + t75;
@@ -241,9 +240,7 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t147 = 0.5*t144;
     const double t148 = 0.5*t145;
     const double t149 = 0.5*t146;
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
-        status = 3; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 3, (z[0] == z[0]) & (z[1 * s] == z[1 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t67;
     x_new[1 * s] = t68;
     x_new[2 * s] = t142;

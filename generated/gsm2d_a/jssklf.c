@@ -57,6 +57,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -101,9 +104,7 @@ DERIVE_INLINE int gsm2d_a_jssklf_step_body(const double *restrict x, const doubl
     const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
     const double t2 = DERIVE_FMA(0.26928237852306386, x[3 * s], DERIVE_FMA(0.634641189261532, x[2 * s], 0.36535881073846804*z[1 * s]));
     const double t3 = DERIVE_FMA(0.5863303827316504, x[3 * s], DERIVE_FMA((-0.2068348086341748), x[2 * s], 0.2068348086341748*z[1 * s]));
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
-        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0]) & (z[1 * s] == z[1 * s])); /* measurement is NaN (filter jssklf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
@@ -118,9 +119,7 @@ DERIVE_INLINE int gsm2d_a_jssklf_pass_body(const double *restrict x, const doubl
     const double t1 = DERIVE_FMA(0.28808634848387027, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, zn[0], 0.04570461280680265*z[0])));
     const double t2 = DERIVE_FMA(0.32878612901536847, x[3 * s], DERIVE_FMA(0.34707246987691837, x[2 * s], DERIVE_FMA(0.36535881073846804, zn[1 * s], 0.2875687193846137*z[1 * s])));
     const double t3 = DERIVE_FMA(0.28808634848387027, x[3 * s], DERIVE_FMA((-0.25253942144097746), x[2 * s], DERIVE_FMA(0.2068348086341748, zn[1 * s], 0.04570461280680265*z[1 * s])));
-    if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s])) && !status) {
-        status = 1; /* measurement is NaN (filter jssklf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s])); /* measurement is NaN (filter jssklf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;

@@ -59,6 +59,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -110,9 +113,7 @@ DERIVE_INLINE int gsm2d_a_kf_step_body(const double *restrict x, const double *r
     const double t8 = t5 + t6;
     const double t9 = t7 + t8;
     const double t10 = 0.1 + t9;
-    if (!(t10 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t10 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t11 = t7/t10;
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
@@ -133,9 +134,7 @@ DERIVE_INLINE int gsm2d_a_kf_step_body(const double *restrict x, const double *r
     const double t33 = t30 + t31;
     const double t34 = t32 + t33;
     const double t35 = 0.1 + t34;
-    if (!(t35 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t35 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t36 = t32/t35;
     const double t37 = t33/t35;
     const double t38 = x[3 * s] + t25;
@@ -145,9 +144,7 @@ DERIVE_INLINE int gsm2d_a_kf_step_body(const double *restrict x, const double *r
     const double t47 = DERIVE_FNMA(t36, t32, t29);
     const double t48 = DERIVE_FNMA(t36, t33, t30);
     const double t49 = DERIVE_FNMA(t37, t33, t31);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
-        status = 3; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 3, (z[0] == z[0]) & (z[1 * s] == z[1 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t17;
     x_new[1 * s] = t18;
     x_new[2 * s] = t42;

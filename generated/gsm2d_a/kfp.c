@@ -57,6 +57,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int gsm2d_a_kfp_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
 {
@@ -83,12 +86,8 @@ DERIVE_INLINE int gsm2d_a_kfp_step_body(const double *restrict x, const double *
     const double t19 = t16 + t17;
     const double t20 = 0.1 + t18;
     const double t21 = 0.1 + t19;
-    if (!(t20 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t21 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t20 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    DERIVE_FAIL(status, 2, t21 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t22 = t14/t20;
     const double t23 = t15/t20;
     const double t24 = t16/t21;
@@ -107,9 +106,7 @@ DERIVE_INLINE int gsm2d_a_kfp_step_body(const double *restrict x, const double *
     const double t47 = DERIVE_FNMA(t16, t24, t11);
     const double t48 = DERIVE_FNMA(t17, t24, t12);
     const double t49 = DERIVE_FNMA(t17, t25, t13);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
-        status = 3; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 3, (z[0] == z[0]) & (z[1 * s] == z[1 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t34;
     x_new[1 * s] = t35;
     x_new[2 * s] = t36;

@@ -57,6 +57,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -173,9 +176,7 @@ DERIVE_INLINE int gsm2d_a_lf_step_body(const double *restrict x, const double *r
     const double t77 = 0.0020408163265306124 + t74;
     const double t78 = 0.004081632653061225 + t75;
     const double t79 = 0.00816326530612245 + t76;
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
-        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0]) & (z[1 * s] == z[1 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t28;
     x_new[1 * s] = t29;
     x_new[2 * s] = t68;

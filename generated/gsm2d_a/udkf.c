@@ -75,6 +75,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
 {
@@ -83,9 +86,7 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     const double t1 = 1.0 + U[11 * s];
     const double t2 = 0.01 + D[3 * s];
     const double t3 = 2.2250738585072014e-308 + t2;
-    if (!(t3 > 0.0) && !status) {
-        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 1, t3 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
     const double t4 = ((t2 <= 0.0) ? 1.0 : t2);
     const double t5 = DERIVE_FMA(D[3 * s], t1, 0.005);
     const double t6 = t5/t4;
@@ -95,14 +96,10 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     const double t10 = 0.01*t8;
     const double t11 = DERIVE_FMA(t7, t9, DERIVE_FMA(t10, t8, D[2 * s]));
     const double t12 = 2.2250738585072014e-308 + t11;
-    if (!(t12 > 0.0) && !status) {
-        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 2, t12 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
     const double t13 = 0.01 + D[1 * s];
     const double t14 = 2.2250738585072014e-308 + t13;
-    if (!(t14 > 0.0) && !status) {
-        status = 3; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 3, t14 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     const double t15 = ((t13 <= 0.0) ? 1.0 : t13);
     const double t16 = DERIVE_FMA(D[1 * s], t0, 0.005);
     const double t17 = t16/t15;
@@ -112,24 +109,18 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     const double t21 = 0.01*t19;
     const double t22 = DERIVE_FMA(t19, t21, DERIVE_FMA(t18, t20, D[0]));
     const double t23 = 2.2250738585072014e-308 + t22;
-    if (!(t23 > 0.0) && !status) {
-        status = 4; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 4, t23 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     const double t24 = x[0] + x[1 * s];
     const double t25 = x[2 * s] + x[3 * s];
     const double t26 = 1.0 + t17;
     const double t27 = t13*t26;
     const double t28 = 0.1 + t22;
-    if (!(t28 > 0.0) && !status) {
-        status = 5; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 5, t28 > 0.0); /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     const double t29 = 1.0/t28;
     const double t30 = 0.1*t29;
     const double t31 = t22*t30;
     const double t32 = DERIVE_FMA(t26, t27, t28);
-    if (!(t32 > 0.0) && !status) {
-        status = 6; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 6, t32 > 0.0); /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     const double t33 = 1.0/t32;
     const double t34 = t28*t33;
     const double t35 = t13*t34;
@@ -143,16 +134,12 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     const double t43 = 1.0 + t6;
     const double t44 = t2*t43;
     const double t45 = 0.1 + t11;
-    if (!(t45 > 0.0) && !status) {
-        status = 7; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 7, t45 > 0.0); /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     const double t46 = 1.0/t45;
     const double t47 = 0.1*t46;
     const double t48 = t11*t47;
     const double t49 = DERIVE_FMA(t43, t44, t45);
-    if (!(t49 > 0.0) && !status) {
-        status = 8; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 8, t49 > 0.0); /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
     const double t50 = 1.0/t49;
     const double t51 = t45*t50;
     const double t52 = t2*t51;
@@ -163,9 +150,7 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     const double t57 = t50*t56;
     const double t58 = DERIVE_FMA(t55, t57, t25);
     const double t59 = DERIVE_FMA(t44, t57, x[3 * s]);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s])) && !status) {
-        status = 9; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 9, (z[0] == z[0]) & (z[1 * s] == z[1 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t41;
     x_new[1 * s] = t42;
     x_new[2 * s] = t58;

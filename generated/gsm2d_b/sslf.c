@@ -57,6 +57,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -99,9 +102,7 @@ DERIVE_INLINE int gsm2d_b_sslf_step_body(const double *restrict x, const double 
     int status = 0;
     const double t0 = DERIVE_FMA(0.26928237852306375, x[1 * s], DERIVE_FMA(0.6346411892615319, x[0], 0.36535881073846804*z[0]));
     const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.20683480863417478*z[0]));
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (filter sslf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     return status;
@@ -112,9 +113,7 @@ DERIVE_INLINE int gsm2d_b_sslf_pass_body(const double *restrict x, const double 
     int status = 0;
     const double t0 = DERIVE_FMA(0.3287861290153683, x[1 * s], DERIVE_FMA(0.34707246987691825, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.2875687193846136*z[0])));
     const double t1 = DERIVE_FMA(0.2880863484838703, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.20683480863417478, zn[0], 0.04570461280680264*z[0])));
-    if (!((zn[0] == zn[0])) && !status) {
-        status = 1; /* measurement is NaN (filter sslf takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0])); /* measurement is NaN (filter sslf takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     return status;

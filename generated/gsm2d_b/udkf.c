@@ -66,6 +66,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int gsm2d_b_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
 {
@@ -73,9 +76,7 @@ DERIVE_INLINE int gsm2d_b_udkf_step_body(const double *restrict x, const double 
     const double t0 = 1.0 + U[1 * s];
     const double t1 = 0.01 + D[1 * s];
     const double t2 = 2.2250738585072014e-308 + t1;
-    if (!(t2 > 0.0) && !status) {
-        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 1, t2 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     const double t3 = ((t1 <= 0.0) ? 1.0 : t1);
     const double t4 = DERIVE_FMA(D[1 * s], t0, 0.005);
     const double t5 = t4/t3;
@@ -85,23 +86,17 @@ DERIVE_INLINE int gsm2d_b_udkf_step_body(const double *restrict x, const double 
     const double t9 = 0.01*t7;
     const double t10 = DERIVE_FMA(t7, t9, DERIVE_FMA(t6, t8, D[0]));
     const double t11 = 2.2250738585072014e-308 + t10;
-    if (!(t11 > 0.0) && !status) {
-        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 2, t11 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     const double t12 = x[0] + x[1 * s];
     const double t13 = 1.0 + t5;
     const double t14 = t1*t13;
     const double t15 = 0.1 + t10;
-    if (!(t15 > 0.0) && !status) {
-        status = 3; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 3, t15 > 0.0); /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     const double t16 = 1.0/t15;
     const double t17 = 0.1*t16;
     const double t18 = t10*t17;
     const double t19 = DERIVE_FMA(t13, t14, t15);
-    if (!(t19 > 0.0) && !status) {
-        status = 4; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 4, t19 > 0.0); /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     const double t20 = 1.0/t19;
     const double t21 = t15*t20;
     const double t22 = t1*t21;
@@ -112,9 +107,7 @@ DERIVE_INLINE int gsm2d_b_udkf_step_body(const double *restrict x, const double 
     const double t27 = t20*t26;
     const double t28 = DERIVE_FMA(t25, t27, t12);
     const double t29 = DERIVE_FMA(t14, t27, x[1 * s]);
-    if (!((z[0] == z[0])) && !status) {
-        status = 5; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 5, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t28;
     x_new[1 * s] = t29;
     U_new[0] = 1.0;

@@ -61,6 +61,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -152,9 +155,7 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t8 = t5 + t6;
     const double t9 = t7 + t8;
     const double t10 = 0.1 + t9;
-    if (!(t10 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t10 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t11 = t7/t10;
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
@@ -223,9 +224,7 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t83 = t80 + t81;
     const double t84 = t82 + t83;
     const double t85 = 0.1 + t84;
-    if (!(t85 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t85 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t86 = t82/t85;
     const double t87 = t83/t85;
     const double t88 = x[3 * s] + t75;
@@ -294,9 +293,7 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t158 = t155 + t156;
     const double t159 = t157 + t158;
     const double t160 = 0.1 + t159;
-    if (!(t160 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t160 > 0.0); /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t161 = t157/t160;
     const double t162 = t158/t160;
     const double t163 = x[5 * s] + t150;
@@ -354,9 +351,7 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t222 = 0.5*t219;
     const double t223 = 0.5*t220;
     const double t224 = 0.5*t221;
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 4, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t67;
     x_new[1 * s] = t68;
     x_new[2 * s] = t142;

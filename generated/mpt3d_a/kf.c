@@ -61,6 +61,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -152,9 +155,7 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t8 = t5 + t6;
     const double t9 = t7 + t8;
     const double t10 = 0.1 + t9;
-    if (!(t10 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t10 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t11 = t7/t10;
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
@@ -175,9 +176,7 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t33 = t30 + t31;
     const double t34 = t32 + t33;
     const double t35 = 0.1 + t34;
-    if (!(t35 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 2, t35 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     const double t36 = t32/t35;
     const double t37 = t33/t35;
     const double t38 = x[3 * s] + t25;
@@ -198,9 +197,7 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t58 = t55 + t56;
     const double t59 = t57 + t58;
     const double t60 = 0.1 + t59;
-    if (!(t60 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 3, t60 > 0.0); /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t61 = t57/t60;
     const double t62 = t58/t60;
     const double t63 = x[5 * s] + t50;
@@ -210,9 +207,7 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t72 = DERIVE_FNMA(t61, t57, t54);
     const double t73 = DERIVE_FNMA(t61, t58, t55);
     const double t74 = DERIVE_FNMA(t62, t58, t56);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 4, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t17;
     x_new[1 * s] = t18;
     x_new[2 * s] = t42;

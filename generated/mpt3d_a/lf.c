@@ -58,6 +58,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -252,9 +255,7 @@ DERIVE_INLINE int mpt3d_a_lf_step_body(const double *restrict x, const double *r
     const double t117 = 0.0020408163265306124 + t114;
     const double t118 = 0.004081632653061225 + t115;
     const double t119 = 0.00816326530612245 + t116;
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t28;
     x_new[1 * s] = t29;
     x_new[2 * s] = t68;

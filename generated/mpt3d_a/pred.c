@@ -59,6 +59,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_VECTOR
 #if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
 #define DERIVE_VECTOR 1
@@ -109,9 +112,7 @@ DERIVE_INLINE int mpt3d_a_pred_step_body(const double *restrict x, const double 
     const double t3 = DERIVE_FMA(0.7931651913658252, x[3 * s], DERIVE_FMA((-0.2068348086341748), x[2 * s], 0.2068348086341748*z[1 * s]));
     const double t4 = DERIVE_FMA(0.42780638062735715, x[5 * s], DERIVE_FMA(0.4278063806273572, x[4 * s], 0.5721936193726429*z[2 * s]));
     const double t5 = DERIVE_FMA(0.7931651913658252, x[5 * s], DERIVE_FMA((-0.2068348086341748), x[4 * s], 0.2068348086341748*z[2 * s]));
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (filter pred takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;
@@ -130,9 +131,7 @@ DERIVE_INLINE int mpt3d_a_pred_pass_body(const double *restrict x, const double 
     const double t3 = DERIVE_FMA(0.5406257699248478, x[3 * s], DERIVE_FMA((-0.25253942144097746), x[2 * s], DERIVE_FMA(0.2068348086341748, zn[1 * s], 0.04570461280680264*z[1 * s])));
     const double t4 = DERIVE_FMA(0.522339429063298, x[5 * s], DERIVE_FMA(0.09453304843594088, x[4 * s], DERIVE_FMA(0.5721936193726429, zn[2 * s], 0.33327333219141636*z[2 * s])));
     const double t5 = DERIVE_FMA(0.5406257699248478, x[5 * s], DERIVE_FMA((-0.25253942144097746), x[4 * s], DERIVE_FMA(0.2068348086341748, zn[2 * s], 0.04570461280680264*z[2 * s])));
-    if (!((zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])) && !status) {
-        status = 1; /* measurement is NaN (filter pred takes no absent measurements) */
-    }
+    DERIVE_FAIL(status, 1, (zn[0] == zn[0]) & (zn[1 * s] == zn[1 * s]) & (zn[2 * s] == zn[2 * s])); /* measurement is NaN (filter pred takes no absent measurements) */
     x_new[0] = t0;
     x_new[1 * s] = t1;
     x_new[2 * s] = t2;

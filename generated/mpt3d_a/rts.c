@@ -69,6 +69,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int mpt3d_a_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
 {
@@ -106,15 +109,9 @@ DERIVE_INLINE int mpt3d_a_rts_step_body(const double *restrict x, const double *
     const double t30 = 0.1 + t27;
     const double t31 = 0.1 + t28;
     const double t32 = 0.1 + t29;
-    if (!(t30 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t31 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    if (!(t32 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t30 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    DERIVE_FAIL(status, 2, t31 > 0.0); /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    DERIVE_FAIL(status, 3, t32 > 0.0); /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     const double t33 = t21/t30;
     const double t34 = t22/t30;
     const double t35 = t23/t31;
@@ -142,9 +139,7 @@ DERIVE_INLINE int mpt3d_a_rts_step_body(const double *restrict x, const double *
     const double t72 = DERIVE_FNMA(t25, t37, t18);
     const double t73 = DERIVE_FNMA(t26, t37, t19);
     const double t74 = DERIVE_FNMA(t26, t38, t20);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 4; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 4, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t51;
     x_new[1 * s] = t52;
     x_new[2 * s] = t53;

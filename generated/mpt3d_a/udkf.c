@@ -81,6 +81,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
 {
@@ -90,9 +93,7 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t2 = 1.0 + U[29 * s];
     const double t3 = 0.01 + D[5 * s];
     const double t4 = 2.2250738585072014e-308 + t3;
-    if (!(t4 > 0.0) && !status) {
-        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 1, t4 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative */
     const double t5 = ((t3 <= 0.0) ? 1.0 : t3);
     const double t6 = DERIVE_FMA(D[5 * s], t2, 0.005);
     const double t7 = t6/t5;
@@ -102,14 +103,10 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t11 = 0.01*t9;
     const double t12 = DERIVE_FMA(t11, t9, DERIVE_FMA(t10, t8, D[4 * s]));
     const double t13 = 2.2250738585072014e-308 + t12;
-    if (!(t13 > 0.0) && !status) {
-        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 2, t13 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative */
     const double t14 = 0.01 + D[3 * s];
     const double t15 = 2.2250738585072014e-308 + t14;
-    if (!(t15 > 0.0) && !status) {
-        status = 3; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 3, t15 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
     const double t16 = ((t14 <= 0.0) ? 1.0 : t14);
     const double t17 = DERIVE_FMA(D[3 * s], t1, 0.005);
     const double t18 = t17/t16;
@@ -119,14 +116,10 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t22 = 0.01*t20;
     const double t23 = DERIVE_FMA(t20, t22, DERIVE_FMA(t19, t21, D[2 * s]));
     const double t24 = 2.2250738585072014e-308 + t23;
-    if (!(t24 > 0.0) && !status) {
-        status = 4; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 4, t24 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
     const double t25 = 0.01 + D[1 * s];
     const double t26 = 2.2250738585072014e-308 + t25;
-    if (!(t26 > 0.0) && !status) {
-        status = 5; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 5, t26 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     const double t27 = ((t25 <= 0.0) ? 1.0 : t25);
     const double t28 = DERIVE_FMA(D[1 * s], t0, 0.005);
     const double t29 = t28/t27;
@@ -136,25 +129,19 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t33 = 0.01*t31;
     const double t34 = DERIVE_FMA(t31, t33, DERIVE_FMA(t30, t32, D[0]));
     const double t35 = 2.2250738585072014e-308 + t34;
-    if (!(t35 > 0.0) && !status) {
-        status = 6; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
+    DERIVE_FAIL(status, 6, t35 > 0.0); /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     const double t36 = x[0] + x[1 * s];
     const double t37 = x[2 * s] + x[3 * s];
     const double t38 = x[4 * s] + x[5 * s];
     const double t39 = 1.0 + t29;
     const double t40 = t25*t39;
     const double t41 = 0.1 + t34;
-    if (!(t41 > 0.0) && !status) {
-        status = 7; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 7, t41 > 0.0); /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     const double t42 = 1.0/t41;
     const double t43 = 0.1*t42;
     const double t44 = t34*t43;
     const double t45 = DERIVE_FMA(t39, t40, t41);
-    if (!(t45 > 0.0) && !status) {
-        status = 8; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 8, t45 > 0.0); /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     const double t46 = 1.0/t45;
     const double t47 = t41*t46;
     const double t48 = t25*t47;
@@ -168,16 +155,12 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t56 = 1.0 + t18;
     const double t57 = t14*t56;
     const double t58 = 0.1 + t23;
-    if (!(t58 > 0.0) && !status) {
-        status = 9; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 9, t58 > 0.0); /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     const double t59 = 1.0/t58;
     const double t60 = 0.1*t59;
     const double t61 = t23*t60;
     const double t62 = DERIVE_FMA(t56, t57, t58);
-    if (!(t62 > 0.0) && !status) {
-        status = 10; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 10, t62 > 0.0); /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
     const double t63 = 1.0/t62;
     const double t64 = t58*t63;
     const double t65 = t14*t64;
@@ -191,16 +174,12 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t73 = 1.0 + t7;
     const double t74 = t3*t73;
     const double t75 = 0.1 + t12;
-    if (!(t75 > 0.0) && !status) {
-        status = 11; /* innovation variance 4 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 11, t75 > 0.0); /* innovation variance 4 of a scalar update is not positive (D or R not positive) */
     const double t76 = 1.0/t75;
     const double t77 = 0.1*t76;
     const double t78 = t12*t77;
     const double t79 = DERIVE_FMA(t73, t74, t75);
-    if (!(t79 > 0.0) && !status) {
-        status = 12; /* innovation variance 5 of a scalar update is not positive (D or R not positive) */
-    }
+    DERIVE_FAIL(status, 12, t79 > 0.0); /* innovation variance 5 of a scalar update is not positive (D or R not positive) */
     const double t80 = 1.0/t79;
     const double t81 = t75*t80;
     const double t82 = t3*t81;
@@ -211,9 +190,7 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t87 = t80*t86;
     const double t88 = DERIVE_FMA(t85, t87, t38);
     const double t89 = DERIVE_FMA(t74, t87, x[5 * s]);
-    if (!((z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])) && !status) {
-        status = 13; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 13, (z[0] == z[0]) & (z[1 * s] == z[1 * s]) & (z[2 * s] == z[2 * s])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t54;
     x_new[1 * s] = t55;
     x_new[2 * s] = t71;

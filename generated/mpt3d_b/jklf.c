@@ -57,6 +57,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -108,9 +111,7 @@ DERIVE_INLINE int mpt3d_b_jklf_step_body(const double *restrict x, const double 
     const double t8 = t5 + t6;
     const double t9 = t7 + t8;
     const double t10 = 0.1 + t9;
-    if (!(t10 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t10 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t11 = t7/t10;
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
@@ -168,9 +169,7 @@ DERIVE_INLINE int mpt3d_b_jklf_step_body(const double *restrict x, const double 
     const double t72 = 0.5*t69;
     const double t73 = 0.5*t70;
     const double t74 = 0.5*t71;
-    if (!((z[0] == z[0])) && !status) {
-        status = 2; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 2, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t67;
     x_new[1 * s] = t68;
     P_new[0] = t72;

@@ -56,6 +56,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 #ifndef DERIVE_LANES
 #if defined(__AVX512F__)
 #define DERIVE_LANES 32
@@ -134,9 +137,7 @@ DERIVE_INLINE int mpt3d_b_lf_step_body(const double *restrict x, const double *r
     const double t37 = 0.0020408163265306124 + t34;
     const double t38 = 0.004081632653061225 + t35;
     const double t39 = 0.00816326530612245 + t36;
-    if (!((z[0] == z[0])) && !status) {
-        status = 1; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 1, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t28;
     x_new[1 * s] = t29;
     P_new[0] = t37;

@@ -61,6 +61,9 @@
 #define DERIVE_INLINE static inline
 #endif
 #endif
+#ifndef DERIVE_FAIL
+#define DERIVE_FAIL(status, code, passes) ((status) |= (!(passes) & !(status)) * (code))
+#endif
 
 DERIVE_INLINE int mpt3d_b_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
 {
@@ -76,9 +79,7 @@ DERIVE_INLINE int mpt3d_b_rts_step_body(const double *restrict x, const double *
     const double t8 = t5 + t6;
     const double t9 = t7 + t8;
     const double t10 = 0.1 + t9;
-    if (!(t10 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
+    DERIVE_FAIL(status, 1, t10 > 0.0); /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     const double t11 = t7/t10;
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
@@ -88,9 +89,7 @@ DERIVE_INLINE int mpt3d_b_rts_step_body(const double *restrict x, const double *
     const double t22 = DERIVE_FNMA(t11, t7, t4);
     const double t23 = DERIVE_FNMA(t11, t8, t5);
     const double t24 = DERIVE_FNMA(t12, t8, t6);
-    if (!((z[0] == z[0])) && !status) {
-        status = 2; /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
-    }
+    DERIVE_FAIL(status, 2, (z[0] == z[0])); /* measurement is NaN (give the option missing for a NaN to mean an absent measurement) */
     x_new[0] = t17;
     x_new[1 * s] = t18;
     P_new[0] = t22;
