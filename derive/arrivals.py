@@ -129,6 +129,7 @@ class Arrivals:
                 self.counts[value] += times
         self.values = sorted(self.counts)            # the distinct finite leaf arrivals
         self.total = sum(value * times for value, times in self.counts.items())
+        self.version = 0                  # counts the accepted edits: what callers remember
 
     def _ready(self, name: str) -> float:
         return self.ready.get(name, _NEVER)
@@ -260,6 +261,7 @@ class Arrivals:
                 self.counts[value] += times
                 self.total += value * times
         self.ready.update(trial.moved)
+        self.version += 1
 
 
 @dataclass

@@ -77,6 +77,7 @@ from derive.statements import (
     Statement,
     Temporary,
     live_statements,
+    rename,
 )
 
 #: A reference latency model in cycles (a Skylake-class x86-64 core: its documented
@@ -344,6 +345,7 @@ class _Work:
         self.forms: dict[sympy.Expr, Form] = {}
         self.leaves_of: dict[sympy.Expr, tuple[tuple[str, ...], bool]] = {}
         self.term_sets: dict[sympy.Expr, frozenset[sympy.Expr]] = {}
+        self.latest_terms: dict[sympy.Expr, tuple] = {}
 
     def fresh(self) -> Temporary:
         self.counter += 1
@@ -358,9 +360,9 @@ class _Work:
             if isinstance(st, Assign):
                 names[st.target] = Temporary(f"t{len(names)}")
         out: list[Statement] = [
-            Assign(names[st.target], st.expr.xreplace(names)) if isinstance(st, Assign)
-            else replace(st, value=st.value.xreplace(names)) for st in body]
-        results = {name: tuple(v.xreplace(names) for v in values)
+            Assign(names[st.target], rename(st.expr, names)) if isinstance(st, Assign)
+            else replace(st, value=rename(st.value, names)) for st in body]
+        results = {name: tuple(rename(v, names) for v in values)
                    for name, values in self.results.items()}
         return self.program._final(out, results)   # an optimised program, final as is
 
@@ -654,9 +656,27 @@ class _Work:
         else:
             late_ready = self._leaf_ready(late, ready)
         bound = max([late_ready, *(self._leaf_ready(a, ready) for a in early),
-                     *(self._leaf_ready(t, ready) for t in sympy.Add.make_args(current)
-                       if t != term)]) + step
+                     self._others_ready(state, current, term)]) + step
         return state.lowers_score(target.name, bound)
+
+    def _others_ready(self, state: Arrivals, current: sympy.Expr, term: sympy.Expr) -> float:
+        """The latest leaf arrival of the terms of the sum ``current`` other than ``term``
+        (``-inf`` when none arrives): from the sum's two latest terms, remembered until
+        the state accepts an edit (each of a sum's terms is tried in turn)."""
+        known = self.latest_terms.get(current)
+        if known is None or known[0] is not state or known[1] != state.version:
+            first = second = -math.inf
+            first_term = None
+            for t in sympy.Add.make_args(current):
+                at = self._leaf_ready(t, state.ready)
+                if at > first:
+                    first, second, first_term = at, first, t
+                elif at > second:
+                    second = at
+            known = self.latest_terms[current] = (state, state.version, first, first_term,
+                                                  second)
+        _, _, first, first_term, second = known
+        return second if first_term is not None and first_term == term else first
 
     def _late_wins(self, state: Arrivals, target: Temporary, terms: list[sympy.Expr],
                    product: Assign, reciprocal: Assign | None) -> bool:
