@@ -168,13 +168,15 @@ class ExpressionLowerer:
     program)."""
 
     def __init__(self, use_fma: bool, state_ports: tuple[str, ...] = (),
-                 order_names: Mapping[sympy.Symbol, sympy.Symbol] | None = None) -> None:
+                 order_names: Mapping[sympy.Symbol, sympy.Symbol] | None = None,
+                 sort_keys: SortKeys | None = None) -> None:
         self.use_fma = use_fma
         self.state_ports = frozenset(state_ports)
         self.order_names = dict(order_names or {})
-        self.order = SortKeys(self.order_names)
+        self.order = sort_keys if sort_keys is not None else SortKeys(self.order_names)
         """The key terms and factors are lowered in: sympy's order of an expression with
-        its symbols named as in :attr:`order_names` (the symbols they copy)."""
+        its symbols named as in :attr:`order_names` (the symbols they copy); ``sort_keys``:
+        a memo of those keys to share (its names must be ``order_names``)."""
 
     def lower(self, e: sympy.Basic) -> Tree:
         if e.is_number:

@@ -188,7 +188,8 @@ def lower_program(program: Program, *, use_fma: bool = False,
     the program's first check (the next ones count on from it), so that the programs of
     one file number their checks apart (:func:`lower_programs`)."""
     program = program.optimize()
-    lowerer = ExpressionLowerer(use_fma, state_ports, program.order_names)
+    lowerer = ExpressionLowerer(use_fma, state_ports, program.order_names,
+                                program.sort_keys())
     body: list[LoweredAssign | LoweredCheck] = []
     cut = _DepthCut(1 + max((int(st.target.name[1:]) for st in program.body
                              if isinstance(st, Assign) and st.target.name[1:].isdigit()),

@@ -23,10 +23,10 @@ from dataclasses import replace
 from fractions import Fraction
 
 import sympy
-from sympy import default_sort_key
 
 from derive.errors import MatrixPropertyError
-from derive.expression_lowering import lower
+from derive.expression_lowering import ExpressionLowerer
+from derive.monomials import sum_of
 from derive.statements import (
     NON_FINITE,
     NONNEGATIVE,
@@ -64,11 +64,13 @@ class _CostCache:
 
     def __init__(self) -> None:
         self._cache: dict[sympy.Expr, Cost] = {}
+        self._lowerer = ExpressionLowerer(use_fma=False)   # one memo of sort keys
+        self.order = self._lowerer.order
 
     def __call__(self, expr: sympy.Expr) -> Cost:
         cost = self._cache.get(expr)
         if cost is None:
-            n = count_tree(lower(expr))
+            n = count_tree(self._lowerer.lower(sympy.sympify(expr)))
             cost = self._cache[expr] = (n.flops, n.instructions)
         return cost
 
@@ -201,7 +203,7 @@ def _replace(expr: sympy.Expr, target: sympy.Expr, symbol: sympy.Symbol) -> symp
     args = [_replace(a, target, symbol) for a in expr.args]
     if all(a is b for a, b in zip(args, expr.args)):
         return expr
-    return expr.func(*args)
+    return sum_of(args) if expr.is_Add else expr.func(*args)
 
 
 def _share(body: Sequence[Statement], fresh, cost: _CostCache) -> list[Statement]:
@@ -216,7 +218,7 @@ def _share(body: Sequence[Statement], fresh, cost: _CostCache) -> list[Statement
             for node in _subexpressions(st.expr):
                 occ.setdefault(node, []).append(sid)
     candidates = [e for e, ids in occ.items() if len(ids) >= 2]
-    candidates.sort(key=lambda e: (-cost(e)[1], default_sort_key(e)))
+    candidates.sort(key=lambda e: (-cost(e)[1], cost.order(e)))
 
     def place_before(sid: int, first: int) -> None:
         if sid in pos:

@@ -64,6 +64,7 @@ from derive.domains import POSITIVE as DOMAIN_POSITIVE
 from derive.errors import MatrixPropertyError, ShapeError
 from derive.optimise import optimize_body
 from derive.rows import RowChunk, check_chunks
+from derive.sort_keys import SortKeys
 from derive.statements import (
     NON_FINITE,
     NONNEGATIVE,
@@ -195,6 +196,7 @@ class Program:
         self._optimized = False
         self._order_names: dict[sympy.Symbol, sympy.Symbol] = {}
         self._rows: tuple[RowChunk, ...] = ()
+        self._sort_keys: SortKeys | None = None
 
     # -- reading the program -------------------------------------------------------------
 
@@ -209,6 +211,16 @@ class Program:
         the symbol it copies, whose name orders the terms and factors it appears in when
         lowered (:mod:`derive.lowering`); empty: the symbols' own names."""
         return dict(self._order_names)
+
+    def sort_keys(self) -> SortKeys:
+        """sympy's order of this final program's expressions, its symbols named as in
+        :attr:`order_names`, remembered: every lowering of the program (Python, C, its
+        counts) shares one memo of keys."""
+        if not self._optimized:
+            raise ProgramError(f"sort_keys: program {self.name!r} is not final")
+        if self._sort_keys is None:
+            self._sort_keys = SortKeys(self._order_names)
+        return self._sort_keys
 
     @property
     def rows(self) -> tuple[RowChunk, ...]:
