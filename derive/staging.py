@@ -75,6 +75,13 @@ def _stage(prog: Program, expr: sympy.Expr, hint: str = "t") -> sympy.Expr:
     return prog.let(expr, hint)
 
 
+def stage(prog: Program, expr: sympy.Expr, hint: str = "t") -> sympy.Expr:
+    """One entry staged as every function here stages its entries (an atom as it is, an
+    entry whose every term is negative as ``-t``): for programs that stage expressions
+    one at a time rather than as a matrix."""
+    return _stage(prog, expr, hint)
+
+
 def _build(prog: Program, rows: int, cols: int, entry: Callable[[int, int], sympy.Expr],
            symmetric_result: bool, hint: str, what: str) -> sympy.Matrix:
     if symmetric_result and rows != cols:

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import sympy
 from sympy.core.basic import _args_sortkey
 
+from derive.monomials import sum_of
+
 
 class InputElement(sympy.Symbol):
     """One element of an input port; its name is how generated code reads it (``P[3]``)."""
@@ -147,6 +149,8 @@ def _replaced(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic],
                                                                   key=_args_sortkey)), True)
         elif isinstance(node, sympy.Function) and not all(a.is_number for a in args):
             out = node.func(*args, evaluate=False)
+        elif node.is_Add:
+            out = sum_of(args)
         else:
             out = node.func(*args)
         memo[node] = out

@@ -46,8 +46,8 @@ import sympy
 from .. import reference as numpy_reference
 from .. import staging
 from ..errors import OptionError
-from ..options import UnscentedOptions
 from ..monomials import sum_of
+from ..options import UnscentedOptions
 from ..statements import substitute
 from .difference import DifferenceForm, difference_form, unmoved_turn
 from .kf import CONDITIONING
@@ -170,7 +170,7 @@ def _signed_let(prog, expr: sympy.Expr) -> sympy.Expr:
     """A difference staged as staging stages any entry: one whose terms are all negative
     (a minus sigma point's ``-δ``) staged positive and returned negated, so the sign folds
     into the sums that use it instead of costing a negation."""
-    return staging.let_matrix(prog, sympy.Matrix([expr]), hint="diff")[0, 0]
+    return staging.stage(prog, expr, "diff")
 
 
 def sigma_spreads(prog, form: DifferenceForm, subs: dict, offsets: sympy.Matrix
