@@ -146,8 +146,9 @@ def _scalar(var: Var, shared: set[str]) -> bool:
 @dataclass(frozen=True)
 class Part:
     """One independent block of a step: its statements and checks with their positions in
-    the step's body, its results (port, index, leaf), and its canonical form
-    (:func:`_canonical`: renamed by local indices; ``key`` compares parts)."""
+    the step's body, its results (port, index, leaf), the temporaries every block may read
+    (``shared``: of the parameters alone), and its canonical form (:func:`_canonical`:
+    renamed by local indices; ``key`` compares parts)."""
 
     body: tuple[tuple[int, LoweredAssign | LoweredCheck], ...]
     results: tuple[tuple[str, int, Tree], ...]
