@@ -1,16 +1,18 @@
 """Products and sums of monomials, built as sympy builds them, without its general flatten.
 
 Staging a matrix product builds, per entry, the products of two entries (atoms: input
-elements, temporaries, numbers, negated temporaries) and their sum.  sympy's ``Mul`` and
+elements, temporaries, numbers, negated temporaries) and their sum; a vector chunk's lanes
+(derive.rows) multiply a coefficient by an element.  sympy's ``Mul`` and
 ``Add`` handle every kind of argument, and for these the general path is most of the
 derivation of a large filter.  A monomial here is a symbol, or a product of a nonzero
 rational and powers of distinct symbols (``-3*t1*t2**2``); for them sympy's result is
 known exactly:
 
-- the product of two distinct commutative symbols is the ``Mul`` of both in
-  :meth:`sympy.Basic.compare` order;
+- the product of ``c1*s1`` and ``c2*s2`` (rationals times distinct commutative symbols,
+  either symbol possibly absent) is the ``Mul`` of ``c1*c2`` (left out when 1) and the
+  symbols in sympy's argument order (``Basic.compare``, as flatten sorts them);
 - the sum of monomials that differ in more than their coefficients is the ``Add`` of
-  them as they are, in :meth:`sympy.Basic.compare` order.
+  them as they are, in that order.
 
 Everything else goes to sympy.  The results are the very expressions sympy returns
 (``tests/numerics/test_monomials.py`` compares them on random inputs), so generated code
@@ -20,11 +22,10 @@ is byte for byte what sympy's constructors give.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from functools import cmp_to_key
 
 import sympy
+from sympy.core.basic import _args_sortkey
 
-_COMPARE = cmp_to_key(sympy.Basic.compare)
 _ZERO, _ONE = sympy.S.Zero, sympy.S.One
 
 
@@ -90,4 +91,4 @@ def sum_of(terms: Iterable[sympy.Expr]) -> sympy.Expr:
         keys.add(key)
     if len(terms) < 2:
         return terms[0] if terms else _ZERO
-    return sympy.Add._from_args(sorted(terms, key=_COMPARE), True)
+    return sympy.Add._from_args(sorted(terms, key=_args_sortkey), True)
