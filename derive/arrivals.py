@@ -130,6 +130,7 @@ class Arrivals:
         self.values = sorted(self.counts)            # the distinct finite leaf arrivals
         self.total = sum(value * times for value, times in self.counts.items())
         self.version = 0                  # counts the accepted edits: what callers remember
+        self.criticals: dict[str, bool] = {}
 
     def _ready(self, name: str) -> float:
         return self.ready.get(name, _NEVER)
@@ -180,35 +181,45 @@ class Arrivals:
         """Whether the score gets lower when temporary ``name`` (of the step) arrives at
         ``value``, its statement's form left as it is.  The score is monotone in each
         arrival (arrivals are maxima of sums), so asking with a lower bound of a
-        rewrite's arrival tells whether the rewrite could lower it.  Downstream arrivals
-        can only fall, and the score is lower exactly when a carried output's arrival
-        falls from above 0 (the sum over the outputs drops; one at 0 can only fall to
-        "never", leaving both), so the walk stops at the first that does."""
-        if not value < self.ready.get(name, _NEVER):
-            return False
+        rewrite's arrival tells whether the rewrite could lower it.
+
+        The answer is the same for every ``value`` below the current arrival: a reader's
+        arrival falls exactly when none of its unmoved reads (nor its carried part)
+        reaches its current arrival, whatever the moved ones fell to, so which
+        statements fall does not depend on how far ``name`` falls.  It is therefore
+        remembered per temporary until an edit is accepted (:meth:`critical`)."""
+        return value < self.ready.get(name, _NEVER) and self.critical(name)
+
+    def critical(self, name: str) -> bool:
+        """Whether an earlier arrival of temporary ``name`` lowers the score: the score
+        is lower exactly when a carried output's arrival falls from above 0 (the sum over
+        the outputs drops; one at 0 can only fall to "never", leaving both), so the walk
+        downstream stops at the first that does."""
+        known = self.criticals.get(name)
+        if known is None:
+            known = self.criticals[name] = self._falls_to_a_leaf(name)
+        return known
+
+    def _falls_to_a_leaf(self, name: str) -> bool:
         ready, forms, readers, height = self.ready, self.forms, self.readers, self.height
         leaves = self.leaves
         if name in leaves and ready[name] > 0:
             return True
-        moved = {name: value}
+        fallen = {name}
         queue = [(height[reader], reader) for reader in readers.get(name, ())]
         heapq.heapify(queue)
         queued = {name, *readers.get(name, ())}
         while queue:
             _, current = heapq.heappop(queue)
             form = forms[current]
-            arrival = form.carried
-            for read, path in form.reads:
-                at = moved.get(read)
-                at = (ready.get(read, _NEVER) if at is None else at) + path
-                if at > arrival:
-                    arrival = at
             old = ready[current]
-            if arrival == old:
+            if form.carried >= old or any(read not in fallen and
+                                          ready.get(read, _NEVER) + path >= old
+                                          for read, path in form.reads):
                 continue
             if current in leaves and old > 0:
                 return True
-            moved[current] = arrival
+            fallen.add(current)
             for reader in readers.get(current, ()):
                 if reader not in queued:
                     queued.add(reader)
@@ -262,6 +273,7 @@ class Arrivals:
                 self.total += value * times
         self.ready.update(trial.moved)
         self.version += 1
+        self.criticals.clear()
 
 
 @dataclass

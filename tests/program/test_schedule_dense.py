@@ -237,6 +237,33 @@ def test_lowers_score_is_the_score_of_the_step_with_that_arrival():
     assert seen == {True, False}
 
 
+def test_lowers_score_follows_each_accepted_edit():
+    """The answers lowers_score remembers per temporary are those of the step as edited:
+    after each accepted edit (a statement made to arrive at once), every temporary's
+    answer is again that of scoring the whole edited step."""
+    program = derive_unit(catalog.load("mpt3d_a"), "kf", {}).programs["step"].optimize()
+    work = _Work(program, [("x", "x_new"), ("P", "P_new")])
+    body = list(program.body)
+    state = work.arrivals(body)
+    assigns = [st for st in body if isinstance(st, Assign)]
+    answers = set()
+    for edited in assigns[::7]:
+        for st in assigns:
+            state.lowers_score(st.target.name, state.ready[st.target.name] - 4)
+        body = [Assign(edited.target, sympy.Integer(0)) if st is edited else st
+                for st in body]
+        state.accept(state.trial([Assign(edited.target, sympy.Integer(0))]))
+        for st in assigns:
+            name, now = st.target.name, state.ready[st.target.name]
+            again = Arrivals(body, lambda e, st=st, now=now, body=body: Form(now - 4, ())
+                             if e is st.expr and st in body else work.form(e),
+                             work._carried_leaf_names()).score()
+            lowers = state.lowers_score(name, now - 4)
+            assert lowers == (again < state.score()), (edited.target, name)
+            answers.add(lowers)
+    assert answers == {True, False}
+
+
 def test_the_bench_prints_the_search_on_dense_kfs():
     """derive bench's dense rows: the search's CPU, the flops it adds (as counted) and
     the chain through one step before and after (the bounds are not taken)."""
