@@ -20,6 +20,7 @@ import sympy
 from sympy import default_sort_key
 
 _ONE = sympy.S.One
+_ONE_KEY = _ONE.sort_key()
 
 
 class SortKeys:
@@ -72,6 +73,12 @@ class SortKeys:
         if type(e).sort_key is not sympy.Expr.sort_key or \
                 self.names and not e.free_symbols.isdisjoint(self.names):
             return self._sympy(e)
+        if e.is_Add:
+            terms = self._polynomial_terms(e)
+            if terms is None:
+                return self._sympy(e)
+            args = tuple(self(t) for t in terms)
+            return (e.class_key(), (len(args), args), _ONE_KEY, _ONE)
         coeff, expr = e.as_coeff_Mul()
         if expr.is_Pow:
             base, exp = expr.as_base_exp()
@@ -92,3 +99,38 @@ class SortKeys:
         else:
             args = tuple(self(a) for a in expr.args)
         return (expr.class_key(), (len(args), args), self(exp), coeff)
+
+    def _polynomial_terms(self, e: sympy.Add) -> list[sympy.Expr] | None:
+        """The terms of the sum ``e`` in :meth:`sympy.Add.as_ordered_terms`' order, where
+        each term is a real number or one times a product of integer powers of symbols
+        (None otherwise): the number first in ``c - k*a`` (c > 0, k < 0), else by
+        monomial, lexicographic on the exponents of the symbols in their key's order,
+        higher first, the number last."""
+        terms = e.args
+        if len(terms) == 2:
+            number, other = (terms if terms[0].is_Number else terms[::-1])
+            if number.is_Number and number.is_positive and other.is_Mul and \
+                    len(other.args) == 2 and other.args[0].is_Number and \
+                    other.args[0].is_negative:
+                return [number, other]
+        monomials = []
+        for term in terms:
+            coeff, rest = term.as_coeff_Mul()
+            if not (coeff.is_Number and coeff.is_extended_real):
+                return None
+            powers = {}
+            for factor in sympy.Mul.make_args(rest) if rest is not _ONE else ():
+                base, exp = factor.as_base_exp() if factor.is_Pow else (factor, _ONE)
+                if not (base.is_Symbol and base.is_commutative and exp.is_Integer):
+                    return None
+                powers[base] = int(exp)
+            monomials.append((term, powers))
+        gens = sorted({base for _, powers in monomials for base in powers}, key=self)
+        where = {base: k for k, base in enumerate(gens)}
+
+        def order(monomial: tuple) -> tuple[int, ...]:
+            exponents = [0] * len(gens)
+            for base, exp in monomial[1].items():
+                exponents[where[base]] = -exp
+            return tuple(exponents)
+        return [term for term, _ in sorted(monomials, key=order)]

@@ -40,3 +40,18 @@ def test_the_key_is_sympys_of_the_renamed_expression(exprs, names):
     keys = SortKeys(names)
     for e in exprs + exprs:                      # the second time from the memo
         assert keys(e) == default_sort_key(e.xreplace(names))
+
+
+polynomial_terms = st.tuples(
+    st.sampled_from(COEFFS + [sympy.Integer(-2), sympy.Float(-0.25), sympy.Integer(3)]),
+    st.lists(st.tuples(atoms, st.sampled_from([1, 1, 2, -1, 3])), max_size=3)).map(
+        lambda t: t[0] * sympy.Mul(*(s ** k for s, k in t[1])))
+
+
+@settings(max_examples=1000, deadline=None)
+@given(st.lists(polynomial_terms, min_size=2, max_size=6))
+def test_the_key_of_a_polynomial_sum_is_sympys(terms):
+    """Sums of monomials (a number and one negated monomial included, which sympy orders
+    number first) take their order from their monomials' exponents, not from sympy."""
+    e = sympy.Add(*terms)
+    assert SortKeys()(e) == default_sort_key(e)
