@@ -62,6 +62,36 @@ def product(a: sympy.Expr, b: sympy.Expr) -> sympy.Expr:
     return args[0] if len(args) == 1 else sympy.Mul._from_args(args, True)
 
 
+def product_of(factors: Iterable[sympy.Expr]) -> sympy.Expr:
+    """``sympy.Mul(*factors)``: built directly where no two factors combine (commutative
+    factors of distinct non-numeric bases, at most one of them a nonzero rational, no
+    product among them and no sum beside a rational, which ``Mul`` would distribute):
+    the rational first, the rest in sympy's argument order."""
+    factors = list(factors)
+    coeff = None
+    rest = []
+    bases = set()
+    for f in factors:
+        if f.is_Rational and coeff is None and f is not _ZERO:
+            coeff = f
+            continue
+        if f.is_Number or f.is_Mul or not f.is_commutative:
+            return sympy.Mul(*factors)
+        base = f.as_base_exp()[0]
+        if base in bases or base.is_number:
+            return sympy.Mul(*factors)
+        bases.add(base)
+        rest.append(f)
+    if coeff is not None and coeff is not _ONE and any(f.is_Add for f in rest):
+        return sympy.Mul(*factors)
+    if not rest:
+        return coeff if coeff is not None else _ONE
+    rest.sort(key=_args_sortkey)
+    if coeff is not None and coeff is not _ONE:
+        rest.insert(0, coeff)
+    return rest[0] if len(rest) == 1 else sympy.Mul._from_args(rest, True)
+
+
 def _monomial_key(term: sympy.Expr):
     """What sympy's ``Add`` collects ``term`` under (its factors without the coefficient),
     or None when ``term`` is not a monomial."""

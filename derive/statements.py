@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import sympy
 from sympy.core.basic import _args_sortkey
 
-from derive.monomials import sum_of
+from derive.monomials import product_of, sum_of
 
 
 class InputElement(sympy.Symbol):
@@ -151,6 +151,8 @@ def _replaced(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic],
             out = node.func(*args, evaluate=False)
         elif node.is_Add:
             out = sum_of(args)
+        elif node.is_Mul:
+            out = product_of(args)
         else:
             out = node.func(*args)
         memo[node] = out
