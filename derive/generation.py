@@ -16,7 +16,7 @@ from . import catalog
 from .emit.render import render_c, render_python
 from .emit.write import write_files
 from .errors import FilterError, ModelFileError
-from .filters import available, derive_unit, kind
+from .filters import available, check_before_deriving, derive_unit, kind
 from .filters.blockwise import whole_size
 from .filters.sensors import uses_sensor_run
 from .flops import LANGUAGES
@@ -124,6 +124,7 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
     if filters is None:  # all that apply: those within a model file's bound
         names = [name for name in names
                  if file_bound_refusal(model, name, typed[name], ref) is None]
+    check_before_deriving(model, typed, named=filters is not None)
     files: dict[str, str] = {}
     units = []
     for name in names:

@@ -120,13 +120,14 @@ def add_arguments(parser) -> None:
 def units(model, filters, options: dict):
     """``[(filter, Unit)]`` of ``filters`` (default: all that apply) with the options of
     the call (each filter given those it takes, as `derive generate` does)."""
-    from ..filters import available, derive_unit, kind
+    from ..filters import available, check_before_deriving, derive_unit, kind
     from ..options import per_filter
 
     names = list(filters) if filters else available(model)
     for name in names:
         kind(name)
     typed = per_filter(names, options, named=bool(filters))
+    check_before_deriving(model, typed, named=bool(filters))
     return [(name, derive_unit(model, name, typed[name])) for name in names]
 
 

@@ -42,7 +42,7 @@ def run(args) -> int:
     from .. import catalog, progress
     from ..apps.verify import jacobian_witness, verify_filter
     from ..errors import VerificationError
-    from ..filters import available, kind
+    from ..filters import available, check_before_deriving, kind
     from ..filters.fir import order
     from ..options import from_arguments, per_filter
     from . import load_model
@@ -59,6 +59,7 @@ def run(args) -> int:
         for name in names:
             kind(name)
         typed = per_filter(names, options, named=bool(args.filters))
+        check_before_deriving(model, typed, named=bool(args.filters))
         for name in names:
             if show_progress:
                 progress.report(f"verify [{number}/{len(refs)}] {model.name}: {name}")

@@ -13,9 +13,10 @@ from __future__ import annotations
 import difflib
 import importlib
 import pkgutil
+from collections.abc import Mapping
 
 from .. import progress, system_checks
-from ..errors import FilterError, SteadyStateError
+from ..errors import FilterError, ModelError, SteadyStateError
 from ..options import use_filters, validate
 from ..precision import DOUBLE, Precision, PrecisionError, precision
 from ..schedule import scheduled_unit
@@ -119,6 +120,24 @@ def why_not(model, name: str) -> str | None:
 def available(model) -> list[str]:
     """Filter names that apply to ``model``."""
     return [name for name in FILTERS if why_not(model, name) is None]
+
+
+def check_before_deriving(model, typed: Mapping, named: bool) -> None:
+    """Run each filter's :attr:`FilterSpec.check` (``typed``: filter name -> its options)
+    before any of them is derived, so that a refusal comes first, not after the others'
+    derivations; for filters not ``named`` (all that apply) the message says so."""
+    for name, options in typed.items():
+        check = kind(name).check
+        if check is None:
+            continue
+        try:
+            check(model, options)
+        except ModelError as exc:
+            if named:
+                raise
+            raise type(exc)(f"{exc} (filter {name!r} is among all that apply to "
+                            f"{model.name!r}; name the filters to derive with --filter)"
+                            ) from None
 
 
 def kind(name: str) -> FilterSpec:

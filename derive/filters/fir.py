@@ -78,7 +78,7 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "fir", "steady-state FIR filter", "linear", "windowed", derive_unit, reference,
-    options=FirOptions, steady=True, listing=80,
+    options=FirOptions, steady=True, listing=80, check=order,
     about={"python": "Run the steady-state FIR filter: each estimate from the last {window} "
                      "measurements."
                      "\n\n    Measurements before the first are taken as zero.",

@@ -105,6 +105,8 @@ class FilterSpec:
     ``derive``: ``derive(model, name, options) -> Unit``.
     ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
     the model kind and, for a steady filter, free symbols and the Riccati conditions).
+    ``check``: ``check(model, options)``, raising the error its derivation would raise for
+    these options, cheaply: run for every filter of a generation before any is derived.
     ``reference``: ``reference(model, data, options) -> (xs, Ps or None)``, the NumPy
     reference on ``data`` (derive.apps.verify: measurements, or a nonlinear scenario).
     ``about``: the run function's one-line description per language (``{window}`` is
@@ -134,6 +136,7 @@ class FilterSpec:
     conditioning: tuple[Conditioned, ...] = ()
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None
+    check: Callable | None = None
     about: Mapping[str, str] = field(default_factory=dict)
     listing: int = 0
 

@@ -14,7 +14,7 @@ from ...emit.library import render_build_files, render_test_program, test_progra
 from ...emit.render import render_unit
 from ...emit.write import write_files
 from ...errors import FilterError, NameError_
-from ...filters import available, kind
+from ...filters import available, check_before_deriving, kind
 from ...generation import command_unit, resolve_model
 from ...options import per_filter
 from ...runs.unit import Unit
@@ -79,6 +79,7 @@ def render_library(model, filters: Iterable[str] | None = None, out: str | Path 
     for name in names:
         kind(name)
     typed = per_filter(names, options, None, named=filters is not None)
+    check_before_deriving(model, typed, named=filters is not None)
     files: dict[str, str] = {}
     units: list[Unit] = []
     tests: dict[str, str] = {}
