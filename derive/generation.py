@@ -124,7 +124,7 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
     if filters is None:  # all that apply: those within a model file's bound
         names = [name for name in names
                  if file_bound_refusal(model, name, typed[name], ref) is None]
-    check_before_deriving(model, typed, named=filters is not None)
+    check_before_deriving(model, names, typed, named=filters is not None)
     files: dict[str, str] = {}
     units = []
     for name in names:

@@ -24,7 +24,7 @@ APPLICATIONS: dict[str, tuple[str, ...]] = {
                       "SymbolError", "VerificationError"),
     "derive.expression_lowering": ("CARRIED",),
     "derive.expressions": ("parse_expression",),
-    "derive.filters": ("available", "derive_unit", "kind"),
+    "derive.filters": ("available", "check_before_deriving", "derive_unit", "kind"),
     "derive.filters.difference": ("difference_form",),
     "derive.filters.eskf": ("reference_predict",),
     "derive.filters.fir": ("order",),

@@ -127,7 +127,7 @@ def units(model, filters, options: dict):
     for name in names:
         kind(name)
     typed = per_filter(names, options, named=bool(filters))
-    check_before_deriving(model, typed, named=bool(filters))
+    check_before_deriving(model, names, typed, named=bool(filters))
     return [(name, derive_unit(model, name, typed[name])) for name in names]
 
 

@@ -59,7 +59,7 @@ def run(args) -> int:
         for name in names:
             kind(name)
         typed = per_filter(names, options, named=bool(args.filters))
-        check_before_deriving(model, typed, named=bool(args.filters))
+        check_before_deriving(model, names, typed, named=bool(args.filters))
         for name in names:
             if show_progress:
                 progress.report(f"verify [{number}/{len(refs)}] {model.name}: {name}")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import difflib
 import importlib
 import pkgutil
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 from .. import progress, system_checks
 from ..errors import FilterError, ModelError, SteadyStateError
@@ -122,22 +122,34 @@ def available(model) -> list[str]:
     return [name for name in FILTERS if why_not(model, name) is None]
 
 
-def check_before_deriving(model, typed: Mapping, named: bool) -> None:
-    """Run each filter's :attr:`FilterSpec.check` (``typed``: filter name -> its options)
-    before any of them is derived, so that a refusal comes first, not after the others'
-    derivations; for filters not ``named`` (all that apply) the message says so."""
-    for name, options in typed.items():
-        check = kind(name).check
-        if check is None:
-            continue
+def check_before_deriving(model, names: Iterable[str], typed: Mapping, named: bool) -> None:
+    """Refuse each of ``names`` (``typed``: filter name -> its options) as
+    :func:`derive_unit` would, for what can be checked cheaply (whether the filter applies,
+    its :attr:`FilterSpec.check`), before any of them is derived, so that a refusal comes
+    first, not after the others' derivations; for filters not ``named`` (all that apply)
+    the message says so."""
+    for name in names:
         try:
-            check(model, options)
+            _refuse_if_not_applying(model, name)
+            check = kind(name).check
+            if check is not None:
+                check(model, typed[name])
         except ModelError as exc:
             if named:
                 raise
             raise type(exc)(f"{exc} (filter {name!r} is among all that apply to "
                             f"{model.name!r}; name the filters to derive with --filter)"
                             ) from None
+
+
+def _refuse_if_not_applying(model, name: str) -> None:
+    f = kind(name)
+    reason = why_not(model, name)
+    if reason is not None:
+        raise (SteadyStateError if f.steady and f.model_kind == model.kind
+               and _inputs_refusal(model, f) is None and _sensors_refusal(model, f) is None
+               else
+               FilterError)(reason)
 
 
 def kind(name: str) -> FilterSpec:
@@ -163,12 +175,7 @@ def derive_unit(model, name: str, options=None):
     or its typed options."""
     f = kind(name)
     typed = validate(name, options)
-    reason = why_not(model, name)
-    if reason is not None:
-        raise (SteadyStateError if f.steady and f.model_kind == model.kind
-               and _inputs_refusal(model, f) is None and _sensors_refusal(model, f) is None
-               else
-               FilterError)(reason)
+    _refuse_if_not_applying(model, name)
     if model.n >= progress.LARGE_MODEL_STATES:
         progress.report(f"deriving {name} for {model.name} ({model.n} states, "
                         f"{model.m} measurements)...")
@@ -184,7 +191,7 @@ def derive_unit(model, name: str, options=None):
 
 
 __all__ = ["FILTERS", "MISSING_FILTERS", "FilterSpec", "available",
-           "derive_unit", "kind", "names", "spec", "why_not"]
+           "check_before_deriving", "derive_unit", "kind", "names", "spec", "why_not"]
 
 
 def _check_constants(model, real: Precision) -> None:

@@ -79,7 +79,7 @@ def render_library(model, filters: Iterable[str] | None = None, out: str | Path 
     for name in names:
         kind(name)
     typed = per_filter(names, options, None, named=filters is not None)
-    check_before_deriving(model, typed, named=filters is not None)
+    check_before_deriving(model, names, typed, named=filters is not None)
     files: dict[str, str] = {}
     units: list[Unit] = []
     tests: dict[str, str] = {}
