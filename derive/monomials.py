@@ -64,32 +64,45 @@ def product(a: sympy.Expr, b: sympy.Expr) -> sympy.Expr:
 
 def product_of(factors: Iterable[sympy.Expr]) -> sympy.Expr:
     """``sympy.Mul(*factors)``: built directly where no two factors combine (commutative
-    factors of distinct non-numeric bases, at most one of them a nonzero rational, no
-    product among them and no sum beside a rational, which ``Mul`` would distribute):
-    the rational first, the rest in sympy's argument order."""
+    factors, products among them taken apart, of distinct non-numeric bases besides
+    rationals, no sum beside a rational other than 1, which ``Mul`` would distribute):
+    the rationals' product first, the rest in sympy's argument order; 0 where a rational
+    is 0 and no factor is known to be infinite."""
     factors = list(factors)
-    coeff = None
+    coeff = _ONE
     rest = []
     bases = set()
-    for f in factors:
-        if f.is_Rational and coeff is None and f is not _ZERO:
-            coeff = f
+    for f in _taken_apart(factors):
+        if f.is_Rational:
+            coeff *= f
             continue
-        if f.is_Number or f.is_Mul or not f.is_commutative:
+        if f.is_Number or not f.is_commutative:
             return sympy.Mul(*factors)
         base = f.as_base_exp()[0]
         if base in bases or base.is_number:
             return sympy.Mul(*factors)
         bases.add(base)
         rest.append(f)
-    if coeff is not None and coeff is not _ONE and any(f.is_Add for f in rest):
+    if coeff is _ZERO:
+        return _ZERO if all(f.is_finite is not False for f in rest) else sympy.Mul(*factors)
+    if coeff is not _ONE and any(f.is_Add for f in rest):
         return sympy.Mul(*factors)
     if not rest:
-        return coeff if coeff is not None else _ONE
+        return coeff
     rest.sort(key=_args_sortkey)
-    if coeff is not None and coeff is not _ONE:
+    if coeff is not _ONE:
         rest.insert(0, coeff)
     return rest[0] if len(rest) == 1 else sympy.Mul._from_args(rest, True)
+
+
+def _taken_apart(factors: list[sympy.Expr]) -> Iterable[sympy.Expr]:
+    """The factors, a commutative product's own factors in its place (as Mul's flatten
+    takes it apart)."""
+    for f in factors:
+        if f.is_Mul and f.is_commutative:
+            yield from f.args
+        else:
+            yield f
 
 
 def _monomial_key(term: sympy.Expr):

@@ -68,7 +68,10 @@ def test_product_of_every_pair_and_triple_of_kinds_is_sympys():
     kinds = [t, -t, t ** 2, 1 / t, sympy.sqrt(t), sympy.exp(t), sympy.exp(u), sympy.sin(t),
              sympy.sin(t + u), t + u, 2 ** t, 3 ** t, sympy.sqrt(2), sympy.sqrt(3), sympy.pi,
              sympy.I, sympy.oo, sympy.S.Zero, sympy.S.One, sympy.Integer(-2),
-             sympy.Rational(1, 3), sympy.Float(0.5), u, t * u]
+             sympy.Rational(1, 3), sympy.Rational(1, 2), sympy.Float(0.5), u, t * u,
+             2 * t * u, sympy.Mul(3, t + u, evaluate=False),
+             sympy.Mul(sympy.Rational(1, 3), t + u, evaluate=False), sympy.zoo, sympy.nan,
+             sympy.Symbol("f", finite=True), sympy.Symbol("g", infinite=True)]
     for a in kinds:
         for b in kinds:
             assert _same(product_of([a, b]), a * b), (a, b)
