@@ -276,7 +276,8 @@ class _DepthCut:
                 stack.extend((a, False) for a in reversed(node.args))
             else:
                 args = [done[id(a)] for a in node.args]
-                cut = Op(node.kind, tuple(a for a, _ in args))
+                cut = node if all(c is a for (c, _), a in zip(args, node.args)) else \
+                    Op(node.kind, tuple(c for c, _ in args))
                 deep = 1 + max(d for _, d in args)
                 if deep >= MAX_DEPTH and node is not tree:
                     name = f"t{self.next}"
