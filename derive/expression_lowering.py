@@ -64,6 +64,7 @@ import sympy
 from derive.errors import ModelError
 from derive.guards import IfAtLeast, IfGreater
 from derive.sort_keys import SortKeys
+from derive.statements import is_number
 from derive.trees import Const, Op, Tree, Var, depth
 
 #: sympy function -> name of the C function (math.h) it lowers to.
@@ -179,7 +180,7 @@ class ExpressionLowerer:
         a memo of those keys to share (its names must be ``order_names``)."""
 
     def lower(self, e: sympy.Basic) -> Tree:
-        if e.is_number:
+        if is_number(e):
             return Const(constant_value(e))
         if e.is_Symbol:
             return Var(e.name)
@@ -235,7 +236,7 @@ class ExpressionLowerer:
         numerator: list[sympy.Expr] = []
         denominator: list[sympy.Expr] = []
         for factor in sympy.Mul.make_args(rest):
-            if factor.is_number:
+            if is_number(factor):
                 coeff = coeff * factor
             elif factor.is_Pow and factor.exp.is_Rational and negative_number(factor.exp):
                 denominator.append(sympy.Pow(factor.base, -factor.exp))
@@ -271,7 +272,7 @@ class ExpressionLowerer:
         constant = sympy.S.Zero
         terms: list[tuple[int, Tree]] = []
         for term in sorted(addends, key=self.order):
-            if term.is_number:
+            if is_number(term):
                 constant += term
                 continue
             coeff, rest = term.as_coeff_Mul()

@@ -36,9 +36,11 @@ from derive.statements import (
     Statement,
     Temporary,
     is_atom,
+    is_number,
     live_statements,
     rename,
     substitute,
+    with_arguments,
 )
 from derive.trees import count_tree
 
@@ -91,7 +93,8 @@ def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...
     for st in body:
         if isinstance(st, Assign):
             expr = substitute(st.expr, subst) if subst else st.expr
-            if expr.has(*NON_FINITE):
+            # Program.let refuses a non-finite expression, so only folding makes one
+            if expr is not st.expr and expr.has(*NON_FINITE):
                 raise MatrixPropertyError(f"{st.target} = {st.expr} is not finite after folding "
                                           f"({expr}): a structurally zero divisor")
             if is_atom(expr):
@@ -203,7 +206,11 @@ def _replace(expr: sympy.Expr, target: sympy.Expr, symbol: sympy.Symbol) -> symp
     args = [_replace(a, target, symbol) for a in expr.args]
     if all(a is b for a, b in zip(args, expr.args)):
         return expr
-    return sum_of(args) if expr.is_Add else expr.func(*args)
+    if expr.is_Add:
+        return sum_of(args)
+    if isinstance(expr, sympy.Function) and not all(is_number(a) for a in args):
+        return with_arguments(expr, args)
+    return expr.func(*args)
 
 
 def _share(body: Sequence[Statement], fresh, cost: _CostCache) -> list[Statement]:
