@@ -18,6 +18,7 @@ import jinja2
 import numpy as np
 
 from derive import interface
+from derive.collection import few_collections
 from derive.emit import c_lanes, c_loops, c_printer, c_run, python_printer, python_run
 from derive.emit.c_loops import P_STRIDE, body_functions, body_name, step_function_body
 from derive.emit.python_loop import single_track_loop
@@ -425,6 +426,7 @@ def _loop_functions(lowered: dict[str, LoweredProgram]) -> dict[str, str]:
     return names
 
 
+@few_collections()
 def render_python(unit: Unit) -> dict[str, str]:
     """``{MODEL_FILTER.py: text}``."""
     if unit.run.sensors:
@@ -500,6 +502,7 @@ def _run_on_track(unit: Unit, status: bool) -> list[str]:
              "    return track_status;", "}"] if status else [f"{call};"])
 
 
+@few_collections()
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     real = precision(unit.precision)

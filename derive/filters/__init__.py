@@ -16,6 +16,7 @@ import pkgutil
 from collections.abc import Iterable, Mapping
 
 from .. import progress, system_checks
+from ..collection import few_collections
 from ..errors import FilterError, ModelError, SteadyStateError
 from ..options import use_filters, validate
 from ..precision import DOUBLE, Precision, PrecisionError, precision
@@ -168,6 +169,7 @@ def kind(name: str) -> FilterSpec:
 spec = kind
 
 
+@few_collections()
 def derive_unit(model, name: str, options=None):
     """Derive one filter for one model: the straight-line programs and layout facts.
 
