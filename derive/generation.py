@@ -9,10 +9,12 @@ output directory untouched.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
+from typing import TypeVar
 
-from . import catalog
+from . import catalog, progress
+from .background import Job
 from .emit.render import render_c, render_python
 from .emit.write import write_files
 from .errors import FilterError, ModelFileError
@@ -27,6 +29,14 @@ from .runs.unit import Unit
 
 #: What ``--lang`` chooses: each choice's languages (derive.flops.LANGUAGES, or all of them).
 LANG_CHOICES = {"python": ("python",), "c": ("c",), "all": LANGUAGES}
+
+#: What a caller of :func:`generate_summaries` says of each unit.
+T = TypeVar("T")
+
+#: A unit of this many statements or more is rendered in a background process while a
+#: core is spare (about half a second to lower and print; below it, forking costs about
+#: what it saves).
+BACKGROUND_STATEMENTS = 2000
 
 
 def is_model_file(ref: str) -> bool:
@@ -92,12 +102,34 @@ def render_unit(model, name: str, lang: str = "all",
     """(the Unit, ``{file name: text}``) of one filter; ``options``: those it takes."""
     check_lang(lang)
     unit = command_unit(model, name, options, model_ref, out_label, lang)
+    return unit, _collected(_rendering(unit, lang, more=False))
+
+
+def _rendering(unit: Unit, lang: str, more: bool) -> list[Job]:
+    """The renderings of ``unit`` in ``lang``, started. For a unit of at least
+    :data:`BACKGROUND_STATEMENTS` statements the first goes to a background process while
+    a core is spare (derive.background) when this process has other work meanwhile: the
+    second rendering, or (``more``) the next filter's derivation."""
+    renderers = ([render_python] if lang in ("python", "all") else []) + \
+        ([render_c] if lang in ("c", "all") else [])
+    large = sum(len(program.body) for program in unit.programs.values()) \
+        >= BACKGROUND_STATEMENTS
+    return [Job(render, unit, background=large and k == 0 and (len(renderers) > 1 or more))
+            for k, render in enumerate(renderers)]
+
+
+def _collected(jobs: list[Job]) -> dict[str, str]:
+    """``{file name: text}`` of the renderings ``jobs``, in their order; on any failure
+    (or Ctrl-C) the background ones still running are stopped."""
     files: dict[str, str] = {}
-    if lang in ("python", "all"):
-        files.update(render_python(unit))
-    if lang in ("c", "all"):
-        files.update(render_c(unit))
-    return unit, files
+    try:
+        for job in jobs:
+            files.update(job.result())
+    except BaseException:
+        for job in jobs:
+            job.cancel()
+        raise
+    return files
 
 
 def render_filter(model, name: str, lang: str = "all",
@@ -111,7 +143,64 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
                    out: str | Path = "generated", options: Mapping | None = None,
                    per_filter_options: Mapping[str, Mapping] | None = None
                    ) -> tuple[list[Path], list[Unit]]:
-    """:func:`generate`, also returning the derived units (e.g. to report a FIR's order)."""
+    """:func:`generate`, also returning the derived units (e.g. to report a FIR's order).
+    The filters are derived here, one after the other; each one's renderings run beside
+    the next one's derivation where a core is spare (derive.background)."""
+    model, names, typed, ref = _planned(model, filters, lang, options, per_filter_options)
+    units = []
+    jobs: list[Job] = []
+    try:
+        for k, name in enumerate(names):
+            unit = command_unit(model, name, typed[name], ref, str(out), lang)
+            units.append(unit)
+            jobs += _rendering(unit, lang, more=k < len(names) - 1)
+    except BaseException:
+        for job in jobs:
+            job.cancel()
+        raise
+    return write_files(out, model.name, _collected(jobs)), units
+
+
+def generate_summaries(model, filters: Iterable[str] | None = None, lang: str = "all",
+                       out: str | Path = "generated", options: Mapping | None = None,
+                       per_filter_options: Mapping[str, Mapping] | None = None,
+                       summary: Callable[[Unit], T] | None = None
+                       ) -> tuple[list[Path], list[T | None]]:
+    """:func:`generate`, also returning ``summary(unit)`` of each filter's unit (None
+    without ``summary``). For a model of at least ``progress.LARGE_MODEL_STATES`` states
+    each filter is derived and rendered in a background process while a core is spare
+    (derive.background), so its filters derive side by side; a unit stays where it was
+    derived, only its files and its summary come back (``summary``'s value must
+    pickle)."""
+    model, names, typed, ref = _planned(model, filters, lang, options, per_filter_options)
+    jobs: list[Job] = []
+    try:
+        large = model.n >= progress.LARGE_MODEL_STATES
+        for k, name in enumerate(names):   # the last here: this process has nothing else to do
+            jobs.append(Job(_summarised_files, model, name, lang, typed[name], ref, str(out),
+                            summary, background=large and k < len(names) - 1))
+        done = [job.result() for job in jobs]
+    except BaseException:
+        for job in jobs:
+            job.cancel()
+        raise
+    files: dict[str, str] = {}
+    for texts, _ in done:
+        files.update(texts)
+    return write_files(out, model.name, files), [said for _, said in done]
+
+
+def _summarised_files(model, name: str, lang: str, options: SharedOptions,
+                      model_ref: str | None, out_label: str,
+                      summary: Callable[[Unit], T] | None) -> tuple[dict[str, str], T | None]:
+    unit, files = render_unit(model, name, lang, options, model_ref, out_label)
+    return files, summary(unit) if summary is not None else None
+
+
+def _planned(model, filters: Iterable[str] | None, lang: str, options: Mapping | None,
+             per_filter_options: Mapping[str, Mapping] | None):
+    """(the model, the names of the filters to derive, their typed options, the model
+    file's path or None), every name, option and refusal checked before any derivation."""
     ref = model if isinstance(model, str) else None
     model = resolve_model(model)
     check_lang(lang)
@@ -125,13 +214,7 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
         names = [name for name in names
                  if file_bound_refusal(model, name, typed[name], ref) is None]
     check_before_deriving(model, names, typed, named=filters is not None)
-    files: dict[str, str] = {}
-    units = []
-    for name in names:
-        unit, texts = render_unit(model, name, lang, typed[name], ref, str(out))
-        units.append(unit)
-        files.update(texts)
-    return write_files(out, model.name, files), units
+    return model, names, typed, ref
 
 
 def generate(model: ModelRef, filters: Iterable[str] | None = None, lang: str = "all",
@@ -151,4 +234,4 @@ def generate(model: ModelRef, filters: Iterable[str] | None = None, lang: str = 
     filter each, and every key must be one that filter takes. Unknown names, wrong
     types and values out of range raise derive.errors.OptionError.
     """
-    return generate_units(model, filters, lang, out, options, per_filter_options)[0]
+    return generate_summaries(model, filters, lang, out, options, per_filter_options)[0]

@@ -172,6 +172,9 @@ class PivotMessage(str):
         message.factorisation, message.axis = factorisation, axis
         return message
 
+    def __getnewargs__(self) -> tuple:   # pickled by its parts (derive.background)
+        return self.matrix, self.pivot, self.factorisation, self.axis
+
     def renumbered(self, rows: dict[str, Sequence[int]]) -> PivotMessage:
         """The same message with the pivot numbered by ``rows[axis]`` (row i of the
         factorised matrix is row ``rows[axis][i]`` of the whole); unchanged without an

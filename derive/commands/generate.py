@@ -3,6 +3,8 @@
 The filter options' flags come from their declarations (derive.options); each option
 given applies to the filters that take it."""
 
+from functools import partial
+
 from . import add_filter_options
 
 NAME = "generate"
@@ -46,7 +48,7 @@ def horizon_line(unit, options: dict) -> str | None:
 def run(args) -> int:
     from .. import catalog
     from ..errors import FilterError
-    from ..generation import generate_units
+    from ..generation import generate_summaries
     from ..options import from_arguments
 
     if args.all == bool(args.model):
@@ -62,12 +64,13 @@ def run(args) -> int:
                 raise FilterError("--layout library writes C (with its build files and test "
                                   "programs); --lang python does not apply")
             paths, units = generate_library(ref, args.filters, args.out, options)
+            lines = [horizon_line(unit, options) for unit in units]
         else:
-            paths, units = generate_units(ref, args.filters, args.lang, args.out, options)
+            paths, lines = generate_summaries(ref, args.filters, args.lang, args.out, options,
+                                              summary=partial(horizon_line, options=options))
         total += len(paths)
         print(f"{ref}: {len(paths)} files in {paths[0].parent if paths else args.out}")
-        for unit in units:
-            line = horizon_line(unit, options)
+        for line in lines:
             if line:
                 print(line)
     print(f"wrote {total} files")
