@@ -79,6 +79,7 @@ from derive.statements import (
     live_statements,
     rename,
 )
+from derive.trees import count_trees
 
 #: A reference latency model in cycles (a Skylake-class x86-64 core: its documented
 #: latencies for double add, multiply, fma, divide and square root; a call of a math
@@ -87,6 +88,13 @@ from derive.statements import (
 #: machine instead.
 REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.0,
                     "call": 40.0}
+
+#: The most floating-point operations a core issues a cycle (four pipes: AMD's Zen 2 to
+#: 5; the reference core, like Intel's, has two), so a step's arithmetic at this rate is
+#: a lower bound on its time on any of them.
+WIDEST_ISSUE = 4
+#: Cycles the reference core's divider is busy per double division and square root.
+REFERENCE_DIVIDER = {"div": 4.0, "sqrt": 4.5}
 
 _ONE = sympy.S.One
 _ROUNDS = 3
@@ -823,3 +831,47 @@ def scheduled_unit(unit: Unit) -> Unit:
     declares it)."""
     step = latency_schedule(unit.programs["step"], unit.carried)
     return replace(unit, programs={**unit.programs, "step": step})
+
+
+def latency_scheduled_unit(unit: Unit) -> Unit:
+    """What the option ``latency_schedule`` makes of ``unit``: :func:`scheduled_unit`
+    where the carried chain or the divider can limit the run loop, else ``unit`` as it
+    is, with a header line that says why (:func:`issue_limited`)."""
+    why = issue_limited(unit.programs["step"], unit.carried)
+    if why is None:
+        return scheduled_unit(unit)
+    return replace(unit, facts=(*unit.facts, f"latency schedule: not applied: {why}"))
+
+
+def issue_limited(program: Program, carried: Sequence[tuple[str, str]] = CARRIED
+                  ) -> str | None:
+    """Why the latency schedule cannot make a run loop of step ``program`` faster, or None
+    when it can.  A loop step takes at least as long as its carried chain, as its
+    divisions and square roots keep the divider busy, and as its arithmetic takes to
+    issue.  The schedule shortens the chain and shares divisions, at the price of flops.
+    A step of F flops issues at least F/2 arithmetic instructions (an fma does two), so
+    at :data:`WIDEST_ISSUE` a cycle it takes at least F/8 cycles on any core; when that
+    is as long as the default step's chain (:data:`REFERENCE_CYCLES`) and its divider
+    time (:data:`REFERENCE_DIVIDER`), issue is the limit, and the schedule's extra flops
+    can only add to it (a 32-state Joseph-form KF: a chain of a few hundred cycles,
+    thousands of cycles of arithmetic)."""
+    program = program.optimize()
+    inputs = {p.name for p in program.inputs}
+    pairs = [(port, out) for port, out in carried
+             if port in inputs and out in program.results]
+    if not pairs:
+        return None
+    work = _Work(program, pairs)
+    body = list(program.body)
+    chain = work.arrivals(body).score()[0]
+    counts = count_trees(work.lower(st.expr) for st in body if isinstance(st, Assign))
+    issue = counts.flops / 2 / WIDEST_ISSUE
+    divider = sum(REFERENCE_DIVIDER[kind] * getattr(counts, kind) for kind in REFERENCE_DIVIDER)
+    if issue < max(chain, divider):
+        return None
+    return (f"the step's {counts.flops} flops are at least {counts.flops / 2:g} arithmetic "
+            f"instructions (an fma does two), {issue:g} cycles or more to issue at "
+            f"{WIDEST_ISSUE} a cycle (the most any core issues): at least its carried "
+            f"chain ({chain:g} reference cycles) and its divider's {divider:g} cycles, so "
+            "a shorter chain cannot make the run loop faster and the schedule's extra "
+            "flops would slow it; the default schedule is kept")

@@ -20,7 +20,7 @@ from ..collection import few_collections
 from ..errors import FilterError, ModelError, SteadyStateError
 from ..options import use_filters, validate
 from ..precision import DOUBLE, Precision, PrecisionError, precision
-from ..schedule import scheduled_unit
+from ..schedule import latency_scheduled_unit
 from .spec import FilterSpec
 from .unit import checked_measurements, update_first_unit
 
@@ -188,7 +188,7 @@ def derive_unit(model, name: str, options=None):
         unit = update_first_unit(unit, model, f, typed)
     unit = checked_measurements(unit, model, f, typed)
     if typed.get("latency_schedule"):
-        unit = scheduled_unit(unit)
+        unit = latency_scheduled_unit(unit)
     return unit
 
 
