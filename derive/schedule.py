@@ -105,34 +105,16 @@ def latency_schedule(program: Program,
     """``program`` (a step; optimised first) rewritten for a short carried chain; the
     same program when it carries nothing (``carried``: (input port, output port) pairs,
     as :data:`derive.expression_lowering.CARRIED`)."""
-    program = program.optimize()
+    work = _Work.of(program, carried)
+    return program.optimize() if work is None else work.scheduled()
+
+
+def _carried_pairs(program: Program, carried: Sequence[tuple[str, str]]
+                   ) -> list[tuple[str, str]]:
+    """The pairs of ``carried`` whose input and output ``program`` has."""
     inputs = {p.name for p in program.inputs}
-    pairs = [(port, out) for port, out in carried
-             if port in inputs and out in program.results]
-    if not pairs:
-        return program
-    work = _Work(program, pairs)
-    body = list(program.body)
-    default_chain = work.arrivals(body).score()[0]
-    for _ in range(_ROUNDS):
-        before = body
-        body = work.fuse(body)
-        body = work.greedy(body, work.direct_candidates)
-        body = work.fuse(body)
-        body = work.greedy(body, work.late_candidates)
-        body = work.share_reciprocals(body)
-        if body == before:
-            break
-    body = work.prune(body)
-    body, merged = _merge(live_statements(body, program.results))
-    work.results = {name: tuple(v.xreplace(merged) for v in values)
-                    for name, values in work.results.items()}
-    scheduled = work.build(work.order(body))
-    # the rounds apply some rewrites whole (fusing, shared reciprocals): the step as
-    # scheduled is kept only when its carried chain is no longer than the default's
-    if _chain(scheduled, pairs) > default_chain:
-        return program
-    return scheduled
+    return [(port, out) for port, out in carried
+            if port in inputs and out in program.results]
 
 
 def _chain(program: Program, pairs: list[tuple[str, str]]) -> float:
@@ -147,9 +129,7 @@ def one_step_chain(program: Program,
     carried input to a carried output, in :data:`REFERENCE_CYCLES` (0 when none
     carries)."""
     program = program.optimize()
-    inputs = {p.name for p in program.inputs}
-    pairs = [(port, out) for port, out in carried
-             if port in inputs and out in program.results]
+    pairs = _carried_pairs(program, carried)
     return _chain(program, pairs) if pairs else 0.0
 
 
@@ -341,6 +321,7 @@ class _Work:
 
     def __init__(self, program: Program, pairs: list[tuple[str, str]]) -> None:
         self.program = program
+        self.pairs = pairs
         self.results = program.results
         self.carried_ports = {port for port, _ in pairs}
         self.leaves = [leaf for _, out in pairs for leaf in self.results[out]]
@@ -354,6 +335,57 @@ class _Work:
         self.leaves_of: dict[sympy.Expr, tuple[tuple[str, ...], bool]] = {}
         self.term_sets: dict[sympy.Expr, frozenset[sympy.Expr]] = {}
         self.latest_terms: dict[sympy.Expr, tuple] = {}
+
+    @classmethod
+    def of(cls, program: Program, carried: Sequence[tuple[str, str]]) -> _Work | None:
+        """The work of scheduling step ``program`` (optimised first); None when it
+        carries nothing."""
+        program = program.optimize()
+        pairs = _carried_pairs(program, carried)
+        return cls(program, pairs) if pairs else None
+
+    def scheduled(self) -> Program:
+        """The step in the latency schedule (the greedy rounds, then the order), or the
+        step as it is when the schedule's chain would be longer."""
+        program = self.program
+        body = list(program.body)
+        default_chain = self.arrivals(body).score()[0]
+        for _ in range(_ROUNDS):
+            before = body
+            body = self.fuse(body)
+            body = self.greedy(body, self.direct_candidates)
+            body = self.fuse(body)
+            body = self.greedy(body, self.late_candidates)
+            body = self.share_reciprocals(body)
+            if body == before:
+                break
+        body = self.prune(body)
+        body, merged = _merge(live_statements(body, program.results))
+        self.results = {name: tuple(v.xreplace(merged) for v in values)
+                        for name, values in self.results.items()}
+        scheduled = self.build(self.order(body))
+        # the rounds apply some rewrites whole (fusing, shared reciprocals): the step as
+        # scheduled is kept only when its carried chain is no longer than the default's
+        if _chain(scheduled, self.pairs) > default_chain:
+            return program
+        return scheduled
+
+    def issue_limit(self) -> str | None:
+        """:func:`issue_limited` of the step."""
+        body = list(self.program.body)
+        chain = self.arrivals(body).score()[0]
+        counts = count_trees(self.lower(st.expr) for st in body if isinstance(st, Assign))
+        issue = counts.flops / 2 / WIDEST_ISSUE
+        divider = sum(REFERENCE_DIVIDER[kind] * getattr(counts, kind)
+                      for kind in REFERENCE_DIVIDER)
+        if issue < max(chain, divider):
+            return None
+        return (f"the step's {counts.flops} flops are at least {counts.flops / 2:g} "
+                f"arithmetic instructions (an fma does two), {issue:g} cycles or more to "
+                f"issue at {WIDEST_ISSUE} a cycle (the most any core issues): at least its "
+                f"carried chain ({chain:g} reference cycles) and its divider's {divider:g} "
+                "cycles, so a shorter chain cannot make the run loop faster and the "
+                "schedule's extra flops would slow it; the default schedule is kept")
 
     def fresh(self) -> Temporary:
         self.counter += 1
@@ -837,10 +869,12 @@ def latency_scheduled_unit(unit: Unit) -> Unit:
     """What the option ``latency_schedule`` makes of ``unit``: :func:`scheduled_unit`
     where the carried chain or the divider can limit the run loop, else ``unit`` as it
     is, with a header line that says why (:func:`issue_limited`)."""
-    why = issue_limited(unit.programs["step"], unit.carried)
-    if why is None:
-        return scheduled_unit(unit)
-    return replace(unit, facts=(*unit.facts, f"latency schedule: not applied: {why}"))
+    work = _Work.of(unit.programs["step"], unit.carried)
+    why = None if work is None else work.issue_limit()
+    if why is not None:
+        return replace(unit, facts=(*unit.facts, f"latency schedule: not applied: {why}"))
+    step = unit.programs["step"].optimize() if work is None else work.scheduled()
+    return replace(unit, programs={**unit.programs, "step": step})
 
 
 def issue_limited(program: Program, carried: Sequence[tuple[str, str]] = CARRIED
@@ -855,23 +889,5 @@ def issue_limited(program: Program, carried: Sequence[tuple[str, str]] = CARRIED
     time (:data:`REFERENCE_DIVIDER`), issue is the limit, and the schedule's extra flops
     can only add to it (a 32-state Joseph-form KF: a chain of a few hundred cycles,
     thousands of cycles of arithmetic)."""
-    program = program.optimize()
-    inputs = {p.name for p in program.inputs}
-    pairs = [(port, out) for port, out in carried
-             if port in inputs and out in program.results]
-    if not pairs:
-        return None
-    work = _Work(program, pairs)
-    body = list(program.body)
-    chain = work.arrivals(body).score()[0]
-    counts = count_trees(work.lower(st.expr) for st in body if isinstance(st, Assign))
-    issue = counts.flops / 2 / WIDEST_ISSUE
-    divider = sum(REFERENCE_DIVIDER[kind] * getattr(counts, kind) for kind in REFERENCE_DIVIDER)
-    if issue < max(chain, divider):
-        return None
-    return (f"the step's {counts.flops} flops are at least {counts.flops / 2:g} arithmetic "
-            f"instructions (an fma does two), {issue:g} cycles or more to issue at "
-            f"{WIDEST_ISSUE} a cycle (the most any core issues): at least its carried "
-            f"chain ({chain:g} reference cycles) and its divider's {divider:g} cycles, so "
-            "a shorter chain cannot make the run loop faster and the schedule's extra "
-            "flops would slow it; the default schedule is kept")
+    work = _Work.of(program, carried)
+    return None if work is None else work.issue_limit()

@@ -6,10 +6,7 @@ loop (every catalog KF, k independent axes) the schedule applies as before."""
 
 from __future__ import annotations
 
-import signal
-from contextlib import contextmanager
-
-import sympy
+from _band_models import band_file, band_model, hang_guard
 
 from derive import LinearModel, catalog
 from derive import schedule as schedule_module
@@ -23,32 +20,8 @@ JOSEPH = {"joseph": True, "missing": True}
 HANG_GUARD = 120    # seconds; about 4 on this repository's machines
 
 
-@contextmanager
-def hang_guard(seconds: int):
-    def stop(signum, frame):
-        raise TimeoutError(f"still running after {seconds} s")
-    previous = signal.signal(signal.SIGALRM, stop)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
-
-
-def _band(n: int) -> LinearModel:
-    """n states, each moved by the next two; every fourth one measured: P fills."""
-    dt, q, r = sympy.symbols("dt q r", positive=True)
-    F = [[1 if i == j else dt if j == i + 1 else dt ** 2 / 2 if j == i + 2 else 0
-          for j in range(n)] for i in range(n)]
-    H = [[1 if j == 4 * i else 0 for j in range(n)] for i in range((n + 3) // 4)]
-    return LinearModel(f"band{n}", [f"x{i}" for i in range(n)],
-                       [f"z{i}" for i in range(len(H))], F, H, sympy.eye(n) * q,
-                       sympy.eye(len(H)) * r, values={"dt": 0.1, "q": 0.01, "r": 0.1})
-
-
 def test_an_issue_limited_step_keeps_its_default_and_the_search_is_not_run(monkeypatch):
-    model = _band(12)
+    model = band_model(12)
     plain = derive_unit(model, "kf", JOSEPH)
 
     def searched(*args, **kwargs):
@@ -98,24 +71,9 @@ def test_no_catalog_kf_is_issue_limited():
 
 def test_the_written_header_says_why(tmp_path):
     from derive.generation import generate
-    paths = generate(_band(12), ["kf"], "c", tmp_path, {**JOSEPH, "latency_schedule": True})
+    paths = generate(band_model(12), ["kf"], "c", tmp_path, {**JOSEPH, "latency_schedule": True})
     header = next(p for p in paths if p.suffix == ".h").read_text()
     assert "latency schedule: not applied: the step's " in " ".join(header.split())
-
-
-def _band_file(n: int) -> str:
-    """A model file of n states, F banded (numbers), every fourth state measured."""
-    rows = lambda m: "[" + ", ".join("[" + ", ".join(r) + "]" for r in m) + "]"  # noqa: E731
-    F = [["1" if i == j else "0.1" if j - i == 1 else "0.005" if j - i == 2 else "0"
-          for j in range(n)] for i in range(n)]
-    H = [["1" if j == 4 * i else "0" for j in range(n)] for i in range((n + 3) // 4)]
-    diagonal = lambda k, v: [[v if i == j else "0" for j in range(k)] for i in range(k)]  # noqa: E731
-    return (f'[model]\nname = "band{n}"\n'
-            f"states = [{', '.join(f'{chr(34)}x{i}{chr(34)}' for i in range(n))}]\n"
-            f"measurements = [{', '.join(f'{chr(34)}z{i}{chr(34)}' for i in range(len(H)))}]\n"
-            f"[discrete]\nF = {rows(F)}\nH = {rows(H)}\nQ = {rows(diagonal(n, '0.01'))}\n"
-            f"R = {rows(diagonal(len(H), '0.1'))}\n"
-            f"[initial]\nx0 = [{', '.join(['0'] * n)}]\nP0 = {rows(diagonal(n, '1'))}\n")
 
 
 def test_a_32_state_joseph_file_with_the_schedule_generates_within_a_hang_guard(tmp_path,
@@ -123,8 +81,8 @@ def test_a_32_state_joseph_file_with_the_schedule_generates_within_a_hang_guard(
     """The red team's case: a 32-state model file (F banded, P filling) with
     --latency-schedule --joseph --missing took 52 s and 300 MB; the search it spent them
     on cannot shorten that loop. The guard only catches a hang."""
-    (tmp_path / "band32.toml").write_text(_band_file(32))
-    assert len(_band_file(32)) < 64 * 1024
+    (tmp_path / "band32.toml").write_text(band_file(32))
+    assert len(band_file(32)) < 64 * 1024
     with hang_guard(HANG_GUARD):
         status = main(["generate", str(tmp_path / "band32.toml"), "--filter", "kf",
                        "--latency-schedule", "--joseph", "--missing", "--lang", "c",

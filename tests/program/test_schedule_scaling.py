@@ -6,11 +6,10 @@ both bounds.  Time limits here only guard against hangs (never a speed assertion
 from __future__ import annotations
 
 import random
-import signal
-from contextlib import contextmanager
 
 import pytest
 import sympy
+from _band_models import band_model, hang_guard
 
 from derive import LinearModel, catalog
 from derive import schedule as schedule_module
@@ -23,19 +22,6 @@ from derive.schedule import REFERENCE_CYCLES
 from derive.statements import Assign, Check, InputElement, Temporary
 
 HANG_GUARD = 120    # seconds; the search takes about one on this machine
-
-
-@contextmanager
-def hang_guard(seconds: int):
-    def stop(signum, frame):
-        raise TimeoutError(f"still running after {seconds} s")
-    previous = signal.signal(signal.SIGALRM, stop)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def _axes(k: int) -> LinearModel:
@@ -178,18 +164,6 @@ def test_the_bench_prints_both_bounds_of_k_axes(one_axis):
 
 # -- late factors: refused unbuilt exactly when scoring the built rewrite would -------------
 
-def _band(n: int) -> LinearModel:
-    """n states, each moved by the next two (dt, dt**2/2): one block whose P fills."""
-    dt, q, r = sympy.symbols("dt q r", positive=True)
-    F = [[1 if i == j else dt if j == i + 1 else dt ** 2 / 2 if j == i + 2 else 0
-          for j in range(n)] for i in range(n)]
-    H = [[1 if j == 4 * i else 0 for j in range(n)] for i in range((n + 3) // 4)]
-    m = len(H)
-    return LinearModel(f"band{n}", [f"x{i}" for i in range(n)], [f"z{i}" for i in range(m)],
-                       F, H, sympy.eye(n) * q, sympy.eye(m) * r,
-                       values={"dt": 0.1, "q": 0.01, "r": 0.1})
-
-
 def _late_edits(monkeypatch, unit, shortcuts: bool):
     """The scheduled step of ``unit`` and, per late-factor rewrite built, whether scoring
     it lowered the step's score (``shortcuts`` False: every candidate built and scored)."""
@@ -216,7 +190,7 @@ def test_late_factors_are_built_only_when_they_win_and_the_step_is_the_same(monk
     rewrite that is built lowers the score (a 32-state step tried 3,700 that did not,
     building and lowering sums of hundreds of terms each time), and the scheduled step
     is bitwise the one of building and scoring every candidate."""
-    unit = derive_unit(_band(8), "kf", {"joseph": True, "missing": True})
+    unit = derive_unit(band_model(8), "kf", {"joseph": True, "missing": True})
     fast, built = _late_edits(monkeypatch, unit, shortcuts=True)
     assert built and all(built)
     slow, every = _late_edits(monkeypatch, unit, shortcuts=False)
