@@ -89,9 +89,9 @@ from derive.trees import count_trees
 REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.0,
                     "call": 40.0}
 
-#: The most floating-point operations a core issues a cycle (four pipes: AMD's Zen 2 to
-#: 5; the reference core, like Intel's, has two), so a step's arithmetic at this rate is
-#: a lower bound on its time on any of them.
+#: Floating-point operations issued a cycle by the widest cores today (four pipes: AMD's
+#: Zen 2 to 5, Apple's M series, Arm's Neoverse V2; the reference core, like Intel's, has
+#: two), so a step's arithmetic at this rate is a lower bound on its time on any of them.
 WIDEST_ISSUE = 4
 #: Cycles the reference core's divider is busy per double division and square root.
 REFERENCE_DIVIDER = {"div": 4.0, "sqrt": 4.5}
@@ -382,7 +382,7 @@ class _Work:
             return None
         return (f"the step's {counts.flops} flops are at least {counts.flops / 2:g} "
                 f"arithmetic instructions (an fma does two), {issue:g} cycles or more to "
-                f"issue at {WIDEST_ISSUE} a cycle (the most any core issues): at least its "
+                f"issue at {WIDEST_ISSUE} a cycle (the widest cores' rate): at least its "
                 f"carried chain ({chain:g} reference cycles) and its divider's {divider:g} "
                 "cycles, so a shorter chain cannot make the run loop faster and the "
                 "schedule's extra flops would slow it; the default schedule is kept")
@@ -884,10 +884,10 @@ def issue_limited(program: Program, carried: Sequence[tuple[str, str]] = CARRIED
     divisions and square roots keep the divider busy, and as its arithmetic takes to
     issue.  The schedule shortens the chain and shares divisions, at the price of flops.
     A step of F flops issues at least F/2 arithmetic instructions (an fma does two), so
-    at :data:`WIDEST_ISSUE` a cycle it takes at least F/8 cycles on any core; when that
-    is as long as the default step's chain (:data:`REFERENCE_CYCLES`) and its divider
-    time (:data:`REFERENCE_DIVIDER`), issue is the limit, and the schedule's extra flops
-    can only add to it (a 32-state Joseph-form KF: a chain of a few hundred cycles,
-    thousands of cycles of arithmetic)."""
+    at :data:`WIDEST_ISSUE` a cycle it takes at least F/8 cycles on today's cores; when
+    that is as long as the default step's chain (:data:`REFERENCE_CYCLES`) and its
+    divider time (:data:`REFERENCE_DIVIDER`), issue is the limit, and the schedule's
+    extra flops can only add to it (a 32-state Joseph-form KF: a chain of a few hundred
+    cycles, thousands of cycles of arithmetic)."""
     work = _Work.of(program, carried)
     return None if work is None else work.issue_limit()
