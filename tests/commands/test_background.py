@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import pickle
-import select
 import signal
 import subprocess
 import sys
@@ -20,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from derive import background
-from derive.background import Job, spare_cores
+from derive.background import Job
 from derive.errors import ModelError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -29,25 +28,84 @@ linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="background processes are forked on Linux only")
 
 
-def _child_pid() -> int:
-    return os.getpid()
+# Forking from a pytest worker that other tests have left threads in (a Dask cluster's)
+# is what derive.background refuses, so each case runs in a fresh interpreter.
+CASES = textwrap.dedent("""\
+    import os, select, sys, time
+    from derive import background
+    from derive.background import Job, spare_cores
+    from derive.errors import ModelError
+
+    def child_pid():
+        return os.getpid()
+
+    def refuse(message):
+        raise ModelError(message)
+
+    class Unpicklable(Exception):
+        def __reduce__(self):
+            raise TypeError("not picklable")
+
+    def refuse_unpicklable():
+        raise Unpicklable("with a lock inside")
+
+    def nested():
+        return os.getpid(), Job(child_pid).result()
+
+    def raised(job):
+        try:
+            job.result()
+        except Exception as exc:
+            return exc
+        raise AssertionError("nothing raised")
+
+    case = sys.argv[1]
+    if case == "value":
+        job = Job(child_pid)
+        assert job.in_background
+        assert job.result() not in (os.getpid(), None)
+        assert not background._running
+    elif case == "exceptions":
+        job = Job(refuse, "model 'x': matrix F[1][2] is not finite")
+        assert job.in_background
+        exc = raised(job)
+        assert type(exc) is ModelError and str(exc) == "model 'x': matrix F[1][2] is not finite"
+        exc = raised(Job(refuse_unpicklable))
+        assert type(exc) is RuntimeError and str(exc) == "Unpicklable: with a lock inside"
+    elif case == "nested":
+        outer, inner = Job(nested).result()
+        assert outer == inner != os.getpid()
+    elif case == "cap":
+        first = Job(child_pid)
+        assert first.in_background and spare_cores() == 0
+        second = Job(child_pid)            # no core spare: here, at once
+        assert not second.in_background and second.result() == os.getpid()
+        ready, _, _ = select.select([first._read], [], [], 120)   # its result is written
+        assert ready
+        assert spare_cores() == 1          # read, so the core is free again
+        assert first.result() != os.getpid()
+    elif case == "cancel":
+        job = Job(time.sleep, 600)
+        pid = job._pid
+        job.cancel()
+        assert not os.path.exists(f"/proc/{pid}") and not background._running
+        assert str(raised(job)) == "cancelled"
+    print("passed", case)
+""")
 
 
-def _refuse(message: str):
-    raise ModelError(message)
-
-
-class _Unpicklable(Exception):
-    def __reduce__(self):
-        raise TypeError("not picklable")
-
-
-def _refuse_unpicklable():
-    raise _Unpicklable("with a lock inside")
-
-
-def _nested() -> tuple[int, int]:
-    return os.getpid(), Job(_child_pid).result()
+@linux_only
+@pytest.mark.parametrize("case", ["value", "exceptions", "nested", "cap", "cancel"])
+def test_a_job_in_a_child(case):
+    """value: a job runs in a child and returns its value; exceptions: what the child
+    raised is raised here (one that does not pickle as a RuntimeError with its type and
+    message); nested: a child runs its own jobs in itself; cap: the cap counts the
+    children, and a finished one's core is free once its result is read; cancel: a
+    cancelled child is gone."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "DERIVE_JOBS": "2"}
+    done = subprocess.run([sys.executable, "-c", CASES, case], env=env, capture_output=True,
+                          text=True, timeout=HANG_GUARD)
+    assert done.returncode == 0 and done.stdout.split() == ["passed", case], done.stderr
 
 
 @pytest.fixture
@@ -57,52 +115,8 @@ def two_jobs(monkeypatch):
     assert not background._running
 
 
-@linux_only
-def test_a_job_runs_in_a_child_and_returns_its_value(two_jobs):
-    job = Job(_child_pid)
-    assert job.in_background
-    assert job.result() not in (os.getpid(), None)
-    assert not background._running
-
-
-@linux_only
-def test_an_exception_in_the_child_is_raised_again_here(two_jobs):
-    job = Job(_refuse, "model 'x': matrix F[1][2] is not finite")
-    assert job.in_background
-    with pytest.raises(ModelError, match=r"F\[1\]\[2\] is not finite"):
-        job.result()
-    unpicklable = Job(_refuse_unpicklable)
-    with pytest.raises(RuntimeError, match="_Unpicklable: with a lock inside"):
-        unpicklable.result()
-
-
-@linux_only
-def test_a_child_runs_its_own_jobs_in_itself(two_jobs):
-    outer, inner = Job(_nested).result()
-    assert outer == inner != os.getpid()
-
-
-@linux_only
-def test_the_cap_counts_the_children_and_frees_a_finished_ones_core(two_jobs):
-    first = Job(_child_pid)
-    assert first.in_background and spare_cores() == 0
-    second = Job(_child_pid)         # no core spare: here, at once
-    assert not second.in_background and second.result() == os.getpid()
-    ready, _, _ = select.select([first._read], [], [], HANG_GUARD)   # its result is written
-    assert ready
-    assert spare_cores() == 1        # read, so the core is free again
-    assert first.result() != os.getpid()
-
-
-@linux_only
-def test_a_cancelled_child_is_gone(two_jobs):
-    job = Job(time.sleep, 600)
-    pid = job._pid
-    job.cancel()
-    assert not os.path.exists(f"/proc/{pid}")
-    assert not background._running
-    with pytest.raises(RuntimeError, match="cancelled"):
-        job.result()
+def _child_pid() -> int:
+    return os.getpid()
 
 
 @pytest.mark.parametrize("setting", ["1", "0", "many"])
