@@ -216,3 +216,22 @@ def test_unwritable_output_is_bad_input(tmp_path, capsys):
     assert cli.main(["reproduce", "--quick", "--no-progress", "--out", str(blocker)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot write the report" in err
+
+
+def test_the_error_state_peer_is_a_note_where_symforce_is_not_installed(monkeypatch):
+    """A full run (not quick) compares the error-state predict with SymForce's; where
+    SymForce is missing the section says so and the job goes on (it was an internal error,
+    exit 70, for the README's first command, whose extra did not install SymForce)."""
+    from derive.apps.report import error_state
+    from derive.modelfile import tomllib
+
+    found = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "symforce" else found(name, *a))
+    s = Section("ins_eskf", "INS/GNSS, error state")
+    error_state.peer_flops(None, s)
+    (todo,) = [b for b in s.blocks if isinstance(b, Todo)]
+    assert todo.text.startswith("SymForce is not installed")
+    extras = tomllib.loads((Path(__file__).resolve().parents[2] / "pyproject.toml")
+                           .read_text())["project"]["optional-dependencies"]
+    assert any(dep.startswith("symforce") for dep in extras["report"])
