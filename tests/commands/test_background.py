@@ -76,14 +76,16 @@ CASES = textwrap.dedent("""\
         outer, inner = Job(nested).result()
         assert outer == inner != os.getpid()
     elif case == "cap":
-        first = Job(child_pid)
+        hold, release = os.pipe()
+        first = Job(os.read, hold, 1)      # the child waits until this process writes
         assert first.in_background and spare_cores() == 0
         second = Job(child_pid)            # no core spare: here, at once
         assert not second.in_background and second.result() == os.getpid()
+        os.write(release, b"x")
         ready, _, _ = select.select([first._read], [], [], 120)   # its result is written
         assert ready
         assert spare_cores() == 1          # read, so the core is free again
-        assert first.result() != os.getpid()
+        assert first.result() == b"x"
     elif case == "cancel":
         job = Job(time.sleep, 600)
         pid = job._pid
