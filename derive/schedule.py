@@ -25,8 +25,10 @@ emits it:
 Then the statements are ordered by when their operands are ready (independent blocks,
 such as the three axes of ``mpt3d_a``, interleave), checks keeping their order and
 every statement that reads a checked value staying after its check. The scheduled step is
-kept only when its carried chain is no longer than the default step's (some rewrites apply
-whole; the default, with the fused negative multiply-add, can be the shorter).
+kept only when its carried chain is shorter than the default step's (some rewrites apply
+whole; the default, with the fused negative multiply-add, can be the shorter; and a step
+whose chain is only as long gains nothing for its flops, while its paths between other
+pairs of carried elements may be longer: a longer run-loop bound).
 
 The search is greedy: each round tries every candidate and keeps each rewrite that lowers
 the score (the latest carried output, then their sum), until none does.  A direct sum is
@@ -365,8 +367,8 @@ class _Work:
                         for name, values in self.results.items()}
         scheduled = self.build(self.order(body))
         # the rounds apply some rewrites whole (fusing, shared reciprocals): the step as
-        # scheduled is kept only when its carried chain is no longer than the default's
-        if _chain(scheduled, self.pairs) > default_chain:
+        # scheduled is kept only when its carried chain is shorter than the default's
+        if _chain(scheduled, self.pairs) >= default_chain:
             return program
         return scheduled
 

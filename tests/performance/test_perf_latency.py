@@ -13,7 +13,7 @@ import sympy
 from _random_models import stable_models
 from hypothesis import HealthCheck, given, settings
 
-from derive import catalog, reference
+from derive import LinearModel, catalog, reference
 from derive.apps.bench.run import LATENCY_SCHEDULE, BenchResult, Row, Settings
 from derive.apps.bench.timing import Timing
 from derive.apps.latency import carried_bound, run_loop_bound, schedule_bounds
@@ -211,6 +211,32 @@ def test_random_models_latency_schedule_is_shorter_and_agrees(model):
     outputs = [_evaluate(program, values) for program in (default, fast)]
     for name in ("x_new", "P_new"):
         assert relative_error(outputs[1][name], outputs[0][name]) <= 1e-12
+
+
+def test_a_schedule_no_shorter_than_the_default_is_not_kept():
+    """A random model the test above found (n = 6, m = 4): the search ends with a step whose
+    one-step chain is the default's, 190 reference cycles, and whose run-loop bound is 190
+    against the default's 186 (other paths grew). The default is kept: fewer flops, the
+    shorter bound."""
+    F = [[0.344, 0.0, 0.0, 0.314, 0.0, 0.0], [-0.316, 0.344, -0.112, -0.242, 0.0, 0.405],
+         [0.33, 0.0, 0.221, -0.43, -0.167, 0.0], [0.269, -0.483, -0.029, 0.344, 0.0, 0.0],
+         [0.427, 0.591, 0.0, 0.0, 0.49, -0.1], [0.0, 0.291, -0.21, -0.059, 0.0, 0.344]]
+    H = [[0.0, 0.12, 1.0, 0.0, -0.842, 0.0], [-1.056, 1.0, 0.081, 0.0, 0.527, 1.583],
+         [0.0, 0.0, 0.0, 1.16, 1.0, -2.059], [1.47, -0.159, 0.0, 1.919, 0.186, 1.0]]
+    Q = [[0.605, -0.078, 0.403, 0.376, -0.023, 0.278],
+         [-0.078, 1.224, 0.154, 0.225, -0.419, -0.697],
+         [0.403, 0.154, 1.532, 0.263, -0.709, 0.302],
+         [0.376, 0.225, 0.263, 0.685, -0.255, -0.234],
+         [-0.023, -0.419, -0.709, -0.255, 1.36, 0.715],
+         [0.278, -0.697, 0.302, -0.234, 0.715, 1.236]]
+    R = [[1.09, -0.769, 0.291, -0.094], [-0.769, 1.451, -0.614, 0.668],
+         [0.291, -0.614, 1.119, -0.556], [-0.094, 0.668, -0.556, 1.845]]
+    model = LinearModel("rand", [f"x{i}" for i in range(6)], [f"y{i}" for i in range(4)],
+                        F, H, Q, R)
+    default = derive_unit(model, "kf", {}).programs["step"].optimize()
+    fast = latency_schedule(default)
+    assert list(map(str, fast.body)) == list(map(str, default.body))
+    assert _bound(fast) == _bound(default) == 186
 
 
 def _evaluate(program, values: dict) -> dict:
