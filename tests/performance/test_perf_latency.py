@@ -25,7 +25,7 @@ from derive.filters import derive_unit
 from derive.flops import count
 from derive.lowering import lower_program
 from derive.pipeline import load_generated
-from derive.schedule import REFERENCE_CYCLES, latency_schedule
+from derive.schedule import REFERENCE_CYCLES, latency_schedule, one_step_chain
 from derive.statements import Assign, Check
 
 MODELS = ("mpt3d_a", "mpt3d_b", "cv", "ca", "gsm2d_a")
@@ -195,12 +195,14 @@ def test_the_bench_bars_compare_with_the_bounds_of_the_same_run():
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(stable_models())
 def test_random_models_latency_schedule_is_shorter_and_agrees(model):
-    """On random dense and sparse models: the bound never grows, and the step computes
-    the same values as the default's (to rounding) on random inputs, Python and checks
-    alike."""
-    default = derive_unit(model, "kf", {}).programs["step"]
+    """On random dense and sparse models: the schedule is kept only with a shorter chain
+    through one step (the run-loop bound, a mean over cycles of steps, can still grow on
+    some: docs/performance.md), and the step computes the same values as the default's (to
+    rounding) on random inputs, Python and checks alike."""
+    default = derive_unit(model, "kf", {}).programs["step"].optimize()
     fast = latency_schedule(default)
-    assert _bound(fast) <= _bound(default)
+    assert one_step_chain(fast) < one_step_chain(default) or \
+        list(map(str, fast.body)) == list(map(str, default.body))
     assert [c.message for c in fast.body if isinstance(c, Check)] == \
         [c.message for c in default.body if isinstance(c, Check)]
     rng = np.random.default_rng(1)
