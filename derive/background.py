@@ -22,7 +22,8 @@ import select
 import signal
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 _ENVIRONMENT = "DERIVE_JOBS"
@@ -147,6 +148,18 @@ class Job:
             os.kill(self._pid, signal.SIGKILL)
             os.waitpid(self._pid, 0)
         self._outcome = (False, RuntimeError("cancelled"))
+
+
+@contextmanager
+def stopped_on_failure(jobs: list[Job]) -> Iterator[list[Job]]:
+    """Run the body with ``jobs`` (which it may extend); if it raises (Ctrl-C included),
+    the children of those still running are stopped first."""
+    try:
+        yield jobs
+    except BaseException:
+        for job in jobs:
+            job.cancel()
+        raise
 
 
 def _call(function: Callable[..., Any], args: tuple) -> tuple[bool, Any]:

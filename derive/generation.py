@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from . import catalog, progress
-from .background import Job
+from .background import Job, stopped_on_failure
 from .emit.render import render_c, render_python
 from .emit.write import write_files
 from .errors import FilterError, ModelFileError
@@ -122,13 +122,9 @@ def _collected(jobs: list[Job]) -> dict[str, str]:
     """``{file name: text}`` of the renderings ``jobs``, in their order; on any failure
     (or Ctrl-C) the background ones still running are stopped."""
     files: dict[str, str] = {}
-    try:
+    with stopped_on_failure(jobs):
         for job in jobs:
             files.update(job.result())
-    except BaseException:
-        for job in jobs:
-            job.cancel()
-        raise
     return files
 
 
@@ -148,16 +144,11 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
     the next one's derivation where a core is spare (derive.background)."""
     model, names, typed, ref = _planned(model, filters, lang, options, per_filter_options)
     units = []
-    jobs: list[Job] = []
-    try:
+    with stopped_on_failure([]) as jobs:
         for k, name in enumerate(names):
             unit = command_unit(model, name, typed[name], ref, str(out), lang)
             units.append(unit)
             jobs += _rendering(unit, lang, more=k < len(names) - 1)
-    except BaseException:
-        for job in jobs:
-            job.cancel()
-        raise
     return write_files(out, model.name, _collected(jobs)), units
 
 
@@ -173,17 +164,12 @@ def generate_summaries(model, filters: Iterable[str] | None = None, lang: str = 
     derived, only its files and its summary come back (``summary``'s value must
     pickle)."""
     model, names, typed, ref = _planned(model, filters, lang, options, per_filter_options)
-    jobs: list[Job] = []
-    try:
-        large = model.n >= progress.LARGE_MODEL_STATES
+    large = model.n >= progress.LARGE_MODEL_STATES
+    with stopped_on_failure([]) as jobs:
         for k, name in enumerate(names):   # the last here: this process has nothing else to do
             jobs.append(Job(_summarised_files, model, name, lang, typed[name], ref, str(out),
                             summary, background=large and k < len(names) - 1))
         done = [job.result() for job in jobs]
-    except BaseException:
-        for job in jobs:
-            job.cancel()
-        raise
     files: dict[str, str] = {}
     for texts, _ in done:
         files.update(texts)
